@@ -1,0 +1,47 @@
+"""Exceptions of the hardware layer.
+
+Every message names the offending value and, where there is a fixed set, the valid choices, so
+the CLI can print it as one line and exit non-zero.
+"""
+
+from __future__ import annotations
+
+
+class HardwareError(Exception):
+    """Base class: anything the hardware layer refuses or cannot do."""
+
+
+class SpecError(HardwareError, ValueError):
+    """An ArmSpec (or its YAML) is malformed or physically inconsistent."""
+
+
+class YamlError(SpecError):
+    """A YAML document is outside the subset the hardware layer reads."""
+
+
+class PortError(HardwareError):
+    """A serial port is missing, busy, not permitted, or went away mid-session."""
+
+
+class NoReplyError(HardwareError):
+    """The device did not answer within the timeout after every retry."""
+
+
+class ProtocolError(HardwareError):
+    """The device answered, but with an error code or a reply that makes no sense."""
+
+
+class DeviceResetError(HardwareError):
+    """The device rebooted (brown-out, watchdog, USB reset): its torque is off."""
+
+
+class SafetyError(HardwareError, ValueError):
+    """A command was refused by the safety layer (wrong shape, torque off, e-stop latched)."""
+
+
+class NotConnectedError(HardwareError):
+    """An Arm method that needs the device was called before connect() or after close()."""
+
+
+class CalibrationFileError(HardwareError):
+    """A joint-calibration YAML is missing, corrupt, or does not fit the spec."""

@@ -1,0 +1,402 @@
+"""The shared 3-DOF arm environment; a task is one small class that plugs into it.
+
+Per control step: normalised action → ``ActionDecoder`` (joint-target deltas) → servo actuation
+layer (noise, latency, dead band, speed limit, quantisation) → MuJoCo (``frame_skip`` physics
+steps) → sensor models (servo readings, stereo-shaped position noise, delay) →
+``ObservationBuilder``. The deploy loop uses the same decoder and builder on real readings.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from hardware.spec import ArmSpec, load_spec
+from sim2real import model as names
+from sim2real.errors import ConfigError, UnknownNameError
+from sim2real.model import RigSpec, build_model, finger_m_to_gripper_rad, gripper_rad_to_finger_m
+from sim2real.observation import ActionDecoder, ObservationBuilder, ObsField
+from sim2real.randomization import DomainRandomizer, ModelIds, load_preset
+from sim2real.randomization.actuation import ServoActuation
+from sim2real.randomization.config import DRConfig
+from sim2real.randomization.sensing import SensorModel
+from sim2real.rendering import FastRenderer
+
+
+# ---- rewards: one registry, vectorised so HER's compute_reward can call them on batches ------
+def _distance_reward(d_m: np.ndarray, success: np.ndarray) -> np.ndarray:
+    """-5·d plus a bonus: pays for the last centimetre (NOTES: -d² is flat near the target)."""
+    return -5.0 * d_m + 1.0 * success
+
+
+def _squared_reward(d_m: np.ndarray, success: np.ndarray) -> np.ndarray:
+    """The seed project's shape: -(distance²) scaled, plus a success bonus."""
+    return -100.0 * d_m * d_m + 1.0 * success
+
+
+def _sparse_reward(d_m: np.ndarray, success: np.ndarray) -> np.ndarray:
+    """0 on success, -1 otherwise (HER's usual setting)."""
+    return success * 1.0 - 1.0
+
+
+REWARDS: dict[str, Callable[[Any, Any], Any]] = {
+    "distance": _distance_reward,
+    "squared": _squared_reward,
+    "sparse": _sparse_reward,
+}
+OBS_MODES: tuple[str, ...] = ("state", "goal", "pixels")
+
+
+@dataclass(frozen=True)
+class Sensed:
+    """One step's sensor readings (what a policy may know), all in the base frame."""
+
+    joints_rad: np.ndarray  # (n_actuators_used,)
+    ee_m: np.ndarray  # (3,)
+    points_m: np.ndarray  # (k, 3) task points (target, cube, ...)
+
+
+class Task(ABC):
+    """Target sampling, reward and success of one mission; the env does everything else."""
+
+    name: ClassVar[str]
+    scene: ClassVar[str]
+    uses_gripper: ClassVar[bool] = False
+    success_threshold_m: ClassVar[float] = 0.01
+    default_reward: ClassVar[str] = "distance"
+    n_points: ClassVar[int] = 1  # rows of true_points()
+
+    @abstractmethod
+    def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
+        """Place the task's objects (target, cube, path) for a new episode."""
+
+    def after_step(self, env: Arm3Env) -> None:  # noqa: B027 - optional hook
+        """Advance task state (a moving target) after physics."""
+
+    @abstractmethod
+    def true_points(self, env: Arm3Env) -> np.ndarray:
+        """(k, 3) positions the cameras observe for this task, in the base frame."""
+
+    @abstractmethod
+    def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
+        """(achieved_goal, desired_goal) as the policy sees them (sensed values)."""
+
+    @abstractmethod
+    def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
+        """(achieved, desired) ground truth: success and reward are judged on these."""
+
+    def obs_fields(
+        self, n_joint_readings: int, n_actions: int, goal_conditioned: bool
+    ) -> tuple[ObsField, ...]:
+        fields = [
+            ObsField("joint_pos", n_joint_readings, "rad", "servo readings (joints, then gripper)"),
+            ObsField("ee_pos", 3, "m", "end-effector position estimate, base frame"),
+            *self.extra_fields(),
+        ]
+        if not goal_conditioned:
+            fields += [
+                ObsField("goal_pos", 3, "m", "desired goal estimate, base frame"),
+                ObsField("goal_delta", 3, "m", "desired goal minus achieved goal"),
+            ]
+        fields.append(ObsField("prev_action", n_actions, "1", "last normalised action"))
+        return tuple(fields)
+
+    def extra_fields(self) -> tuple[ObsField, ...]:
+        return ()
+
+    def extra_readings(self, env: Arm3Env, sensed: Sensed) -> dict[str, np.ndarray]:
+        return {}
+
+    def shaping(self, env: Arm3Env) -> float:
+        """Extra dense reward outside the goal-based part (not seen by HER)."""
+        return 0.0
+
+    def success_from_distance(self, env: Arm3Env, distance_m: float) -> bool:
+        """Success given the true achieved-to-desired distance (tasks may judge differently)."""
+        return distance_m < self.success_threshold_m
+
+    def is_success(self, env: Arm3Env) -> bool:
+        achieved, desired = self.true_goals(env)
+        return self.success_from_distance(env, float(np.linalg.norm(achieved - desired)))
+
+
+TASKS: dict[str, type[Task]] = {}
+
+
+def register_task(cls: type[Task]) -> type[Task]:
+    """Class decorator: a new mission is one file with one decorated Task subclass."""
+    TASKS[cls.name] = cls
+    return cls
+
+
+class Arm3Env(gym.Env[Any, np.ndarray]):
+    """The hobby arm in MuJoCo with domain randomisation, for any registered ``Task``."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012
+
+    def __init__(
+        self,
+        task: str = "reach",
+        dr: str | DRConfig = "default",
+        obs_mode: str = "state",
+        reward: str | None = None,
+        control_hz: float = 20.0,
+        max_episode_steps: int = 50,
+        max_delta_rad: float = 0.1,
+        image_size: int = 84,
+        camera: str = "cam_left",
+        spec: ArmSpec | str | None = None,
+        rig: RigSpec | None = None,
+        render_mode: str | None = None,
+        render_width: int = 640,
+        render_height: int = 480,
+    ) -> None:
+        if task not in TASKS:
+            raise UnknownNameError("task", task, TASKS)
+        if obs_mode not in OBS_MODES:
+            raise UnknownNameError("obs_mode", obs_mode, OBS_MODES)
+        self.task = TASKS[task]()
+        reward = reward or self.task.default_reward
+        if reward not in REWARDS:
+            raise UnknownNameError("reward", reward, REWARDS)
+        if render_mode not in (None, "rgb_array"):
+            raise UnknownNameError("render_mode", str(render_mode), ["rgb_array"])
+        if not 1.0 <= control_hz <= 200.0:
+            raise ConfigError(f"control_hz {control_hz} not in [1, 200]")
+        if max_episode_steps < 1:
+            raise ConfigError(f"max_episode_steps {max_episode_steps} must be >= 1")
+        if image_size not in (48, 64, 84, 96, 128):
+            raise ConfigError(f"image_size {image_size} not one of [48, 64, 84, 96, 128]")
+        self.spec_arm = spec if isinstance(spec, ArmSpec) else load_spec(spec)
+        self.rig = rig or RigSpec()
+        self.rig.camera(camera)  # validates the name
+        self.dr_config = load_preset(dr)
+        self.obs_mode, self.reward_name = obs_mode, reward
+        self._reward_fn = REWARDS[reward]
+        self.render_mode = render_mode
+        self.max_episode_steps = max_episode_steps
+
+        self.model = build_model(self.spec_arm, self.task.scene, self.rig)
+        self.data = mujoco.MjData(self.model)
+        self.control_dt_s = 1.0 / control_hz
+        self.frame_skip = max(1, round(self.control_dt_s / self.model.opt.timestep))
+        self.ids = ModelIds.from_model(self.model, self.spec_arm.joint_names)
+        self.randomizer = DomainRandomizer(self.model, self.ids, self.dr_config)
+
+        spec = self.spec_arm
+        n_j = spec.n_joints
+        self._qadr = np.array([self.model.joint(n).qposadr[0] for n in spec.joint_names])
+        self._wrist_qadr = self.model.joint(names.WRIST_JOINT).qposadr[0]
+        self._has_gripper = spec.gripper is not None
+        if self._has_gripper:
+            self._finger_qadr = np.array(
+                [self.model.joint(n).qposadr[0] for n in names.FINGER_JOINTS]
+            )
+        self._tool_site = self.model.site(names.TOOL_SITE).id
+        self.decoder = ActionDecoder(spec, max_delta_rad, use_gripper=self.task.uses_gripper)
+        self._n_readings = n_j + (1 if self.task.uses_gripper else 0)
+        self._n_act = self.decoder.n_actions
+        self.actuation = ServoActuation(spec, self.control_dt_s, n_j)
+        cam0 = self.rig.cameras[0]
+        T = cam0.base_T_cam()
+        self.sensors = SensorModel(
+            self._n_readings,
+            spec.servo.resolution_rad,
+            T[:3, :3],
+            T[:3, 3],
+            cam0.focal_px,
+            self.rig.baseline_m,
+        )
+        self.builder = ObservationBuilder(
+            self.task.obs_fields(self._n_readings, self._n_act, obs_mode == "goal")
+        )
+
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (self._n_act,), dtype=np.float32)
+        vec = gym.spaces.Box(-np.inf, np.inf, (self.builder.size,), dtype=np.float32)
+        goal = gym.spaces.Box(-np.inf, np.inf, (3,), dtype=np.float32)
+        self.observation_space: gym.spaces.Space[Any]
+        if obs_mode == "goal":
+            self.observation_space = gym.spaces.Dict(
+                {"observation": vec, "achieved_goal": goal, "desired_goal": goal}
+            )
+        elif obs_mode == "pixels":
+            self.observation_space = gym.spaces.Box(
+                0, 255, (image_size, image_size, 3), dtype=np.uint8
+            )
+        else:
+            self.observation_space = vec
+
+        self._camera = camera
+        self._image_size = image_size
+        self._pixel_renderer: FastRenderer | None = None
+        self._frame_renderer: FastRenderer | None = None
+        self._render_wh = (render_width, render_height)
+        self._targets = spec.actuator_home_rad.copy()
+        self._prev_action = np.zeros(self._n_act)
+        self._steps = 0
+        self.dr_params: dict[str, Any] = {}
+        self._points_buf = np.zeros((1 + self.task.n_points, 3))
+
+    # ---- gymnasium API ---------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        self.dr_params = self.randomizer.sample(rng)
+        self.randomizer.apply(self.dr_params)
+        self.actuation.configure(self.dr_params["actuation"])
+        self.sensors.configure(self.dr_params["sensing"])
+        self.sensors.reset()
+
+        mujoco.mj_resetData(self.model, self.data)
+        spec = self.spec_arm
+        q0 = np.clip(
+            spec.home_rad + rng.uniform(-0.15, 0.15, spec.n_joints), spec.lower_rad, spec.upper_rad
+        )
+        self._targets = spec.actuator_home_rad.copy()
+        self._targets[: spec.n_joints] = q0
+        self._set_arm_qpos(q0)
+        self.actuation.reset(q0)
+        self._write_ctrl(q0)
+        self._prev_action = np.zeros(self._n_act)
+        self._steps = 0
+        self.task.reset(self, rng)
+        mujoco.mj_forward(self.model, self.data)
+        obs = self._observe()
+        info = {"dr": self.dr_params, "is_success": self.task.is_success(self)}
+        return obs, info
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        a = np.minimum(np.maximum(action, -1.0), 1.0)
+        self._targets = self.decoder.decode(a, self._targets)
+        n = self.spec_arm.n_joints
+        joint_ctrl = self.actuation(self._targets[:n], self.np_random)
+        self._write_ctrl(joint_ctrl)
+        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        self.task.after_step(self)
+        self._prev_action = a
+        self._steps += 1
+        obs = self._observe()
+        achieved, desired = self.task.true_goals(self)
+        diff = achieved - desired
+        d = math.sqrt(diff @ diff)
+        success = self.task.success_from_distance(self, d)
+        reward = float(self._reward_fn(d, d < self.task.success_threshold_m))
+        if self.obs_mode != "goal":  # HER recomputes rewards from goals alone
+            reward += self.task.shaping(self)
+        truncated = self._steps >= self.max_episode_steps
+        info = {"is_success": success, "distance_m": d}
+        return obs, reward, False, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        if self._frame_renderer is None:
+            self._frame_renderer = FastRenderer(self.model, *self._render_wh)
+        return self._frame_renderer.render(self.data, self._camera)
+
+    def close(self) -> None:
+        for r in (self._pixel_renderer, self._frame_renderer):
+            if r is not None:
+                r.close()
+        self._pixel_renderer = self._frame_renderer = None
+
+    # ---- helpers ---------------------------------------------------------------------------
+    def restore_nominal(self) -> None:
+        """Put every randomised model parameter back to its nominal, bit for bit."""
+        self.randomizer.restore_nominal()
+
+    def ee_position(self) -> np.ndarray:
+        """True tool position (3,) in the base frame."""
+        return self.data.site_xpos[self._tool_site]
+
+    def joint_positions(self) -> np.ndarray:
+        """True joint angles (n_joints,)."""
+        return self.data.qpos[self._qadr]
+
+    def gripper_angle_rad(self) -> float:
+        return finger_m_to_gripper_rad(self.spec_arm, float(self.data.qpos[self._finger_qadr[0]]))
+
+    @property
+    def steps(self) -> int:
+        return self._steps
+
+    def _set_arm_qpos(self, q_rad: np.ndarray) -> None:
+        self.data.qpos[self._qadr] = q_rad
+        j = self.spec_arm.joints
+        self.data.qpos[self._wrist_qadr] = -(j[1].sign * q_rad[1] + j[2].sign * q_rad[2])
+        if self._has_gripper:
+            finger = gripper_rad_to_finger_m(self.spec_arm, float(self._targets[-1]))
+            self.data.qpos[self._finger_qadr] = finger
+
+    def _write_ctrl(self, joint_ctrl_rad: np.ndarray) -> None:
+        n = self.spec_arm.n_joints
+        self.data.ctrl[:n] = joint_ctrl_rad
+        if self._has_gripper:
+            self.data.ctrl[n] = gripper_rad_to_finger_m(self.spec_arm, float(self._targets[-1]))
+
+    def sense(self) -> Sensed:
+        rng = self.np_random
+        q = self.data.qpos[self._qadr]
+        if self.task.uses_gripper:
+            q = np.append(q, self.gripper_angle_rad())
+        joints = self.sensors.read_joints(q, rng)
+        pts = self._points_buf
+        pts[0] = self.data.site_xpos[self._tool_site]
+        pts[1:] = self.task.true_points(self)
+        est = self.sensors.read_points(pts, rng)
+        joints, est = self.sensors.delay(joints, est)
+        return Sensed(joints, est[0], est[1:])
+
+    def _observe(self) -> Any:
+        if self.obs_mode == "pixels":
+            return self._pixels()
+        sensed = self.sense()
+        achieved, desired = self.task.goals(self, sensed)
+        readings = {
+            "joint_pos": sensed.joints_rad,
+            "ee_pos": sensed.ee_m,
+            "goal_pos": desired,
+            "goal_delta": desired - achieved,
+            "prev_action": self._prev_action,
+            **self.task.extra_readings(self, sensed),
+        }
+        vec = self.builder.build(readings)
+        if self.obs_mode == "goal":
+            return {
+                "observation": vec,
+                "achieved_goal": achieved.astype(np.float32),
+                "desired_goal": desired.astype(np.float32),
+            }
+        return vec
+
+    def _pixels(self) -> np.ndarray:
+        if self._pixel_renderer is None:
+            self._pixel_renderer = FastRenderer(self.model, self._image_size, self._image_size)
+        return self._pixel_renderer.render(self.data, self._camera)
+
+
+class Arm3GoalEnv(Arm3Env):
+    """Goal-conditioned variant (Dict observation) for HER; only it has ``compute_reward``,
+    because SB3 treats any env with that method as a goal env."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        kwargs.setdefault("reward", "sparse")
+        if kwargs.setdefault("obs_mode", "goal") != "goal":
+            raise ConfigError(f"Arm3GoalEnv needs obs_mode='goal', got {kwargs['obs_mode']!r}")
+        super().__init__(**kwargs)
+
+    def compute_reward(
+        self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any
+    ) -> np.ndarray:
+        """Vectorised goal reward for HER (batches of goals)."""
+        d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        return self._reward_fn(d, d < self.task.success_threshold_m).astype(np.float32)

@@ -1,0 +1,35 @@
+"""Reach: bring the tool within 1 cm of a target sampled in the reachable workspace."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sim2real.envs.base import Sensed, Task, register_task
+from sim2real.envs.workspace import sample_reachable
+
+if TYPE_CHECKING:
+    from sim2real.envs.base import Arm3Env
+
+
+@register_task
+class ReachTask(Task):
+    name = "reach"
+    scene = "reach"
+
+    def __init__(self) -> None:
+        self.target_m = np.zeros(3)
+
+    def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
+        self.target_m = sample_reachable(env.spec_arm, rng)
+        env.data.mocap_pos[0] = self.target_m
+
+    def true_points(self, env: Arm3Env) -> np.ndarray:
+        return self.target_m[None]
+
+    def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
+        return sensed.ee_m, sensed.points_m[0]
+
+    def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
+        return env.ee_position(), self.target_m
