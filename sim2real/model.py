@@ -35,9 +35,22 @@ FINGER_GEOMS = ("finger_left", "finger_right")
 TABLE_GEOM = "table"
 LEVEL_TENDON = "gripper_level"
 MARKER_GEOM = "target_marker"
+TARGET_PLATE_GEOM = "target_plate"
+EE_MARKER_GEOM = "ee_marker"
 PATH_GEOM_PREFIX = "seam_"
 SEAM_BODY = "seam"
 SEAM_LENGTH_M = 0.12
+
+# ArUco markers for the camera pipeline (deploy scenes): DICT_4X4_50 ids, black square side.
+MARKER_DICTIONARY = "DICT_4X4_50"
+TARGET_MARKER_ID = 0
+EE_MARKER_ID = 1
+TARGET_MARKER_SIZE_M = 0.04
+EE_MARKER_SIZE_M = 0.03
+MARKER_TEXTURE_PX = 96  # texture side; the black square covers MARKER_FILL of it
+MARKER_FILL = 0.75
+# Where the ee marker sits on the wrist body (plate centre, on a riser above the wrist link).
+EE_MARKER_POS_M = (0.02, 0.0, 0.016)
 
 PHYSICS_TIMESTEP_S = 0.005
 # Position-servo stiffness: the stall torque is reached at this tracking error.
@@ -123,10 +136,10 @@ def _stereo_pair(
 class RigSpec:
     """Two cameras forming a stereo rig in front of the arm (baseline along the camera x axis)."""
 
-    centre_m: tuple[float, float, float] = (0.55, 0.0, 0.40)
-    look_at_m: tuple[float, float, float] = (0.12, 0.0, 0.05)
-    baseline_m: float = 0.08
-    fovy_deg: float = 45.0
+    centre_m: tuple[float, float, float] = (0.6, 0.0, 0.45)
+    look_at_m: tuple[float, float, float] = (0.08, 0.0, 0.06)
+    baseline_m: float = 0.1
+    fovy_deg: float = 55.0
     cameras: tuple[CameraSpec, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -155,7 +168,7 @@ def _quat_from_R(R: np.ndarray) -> np.ndarray:
     return q
 
 
-def _arm_xml(spec: ArmSpec) -> tuple[str, str]:
+def _arm_xml(spec: ArmSpec, markers: bool = False) -> tuple[str, str]:
     """(worldbody XML of the arm, tendon/equality/actuator XML)."""
     L = spec.links
     j_yaw, j_sh, j_el = spec.joints
@@ -176,6 +189,13 @@ def _arm_xml(spec: ArmSpec) -> tuple[str, str]:
               <joint name="finger_right" type="slide" axis="0 -1 0" range="0 {_f(half)}" damping="0.5" armature="0.01"/>
               <geom name="finger_right" type="box" size="0.009 0.004 0.025" pos="0 -0.004 0.02" class="finger"/>
             </body>"""
+    ee_marker = ""
+    if markers:
+        plate = EE_MARKER_SIZE_M / MARKER_FILL / 2
+        mx, my, mz = EE_MARKER_POS_M
+        ee_marker = f"""
+              <geom name="ee_marker_riser" type="box" size="0.008 0.008 {_f((mz - 0.008) / 2)}" pos="{_f(mx, my, 0.008 + (mz - 0.008) / 2)}" rgba="0.2 0.2 0.2 1" contype="0" conaffinity="0" mass="0.001"/>
+              <geom name="{EE_MARKER_GEOM}" type="box" size="{_f(plate, plate, 0.0008)}" pos="{_f(mx, my, mz)}" material="aruco_{EE_MARKER_ID}" contype="0" conaffinity="0" mass="0.002"/>"""
     return (
         f"""
     <body name="base" pos="0 0 0">
@@ -192,7 +212,7 @@ def _arm_xml(spec: ArmSpec) -> tuple[str, str]:
             <body name="wrist" pos="{_f(L.forearm_m)} 0 0">
               <joint name="{WRIST_JOINT}" axis="0 1 0" range="-3.5 3.5" damping="0.01"/>
               <geom name="wrist" type="box" size="{_f(L.tool_forward_m / 2 + 0.005)} 0.012 0.008" pos="{_f(L.tool_forward_m / 2 - 0.005, 0, 0)}" class="arm" mass="0.03"/>
-              <site name="{TOOL_SITE}" pos="{_f(L.tool_forward_m, 0, -L.tool_down_m)}" size="0.006" rgba="0 0.8 0.2 0.8"/>{fingers}
+              <site name="{TOOL_SITE}" pos="{_f(L.tool_forward_m, 0, -L.tool_down_m)}" size="0.006" rgba="{"0 0 0 0" if markers else "0 0.8 0.2 0.8"}"/>{fingers}{ee_marker}
             </body>
           </body>
         </body>
@@ -217,14 +237,34 @@ def _arm_xml(spec: ArmSpec) -> tuple[str, str]:
     )
 
 
-def build_mjcf(spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None) -> str:
-    """The MJCF text of the arm in a scene with the stereo rig."""
+def build_mjcf(
+    spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None, markers: bool = False
+) -> str:
+    """The MJCF text of the arm in a scene with the stereo rig.
+
+    ``markers=True`` adds ArUco plates (on the target and on the wrist) whose textures
+    ``sim2real.deploy.virtual_cameras.install_marker_textures`` fills in after compilation.
+    """
     if scene not in SCENES:
         raise UnknownNameError("scene", scene, SCENES)
     if scene == "pick" and spec.gripper is None:
         raise ConfigError(f"scene 'pick' needs a gripper, but spec {spec.name!r} has none")
     rig = rig or RigSpec()
-    arm, extras = _arm_xml(spec)
+    arm, extras = _arm_xml(spec, markers)
+    target_plate = ""
+    marker_assets = ""
+    if markers:
+        plate = TARGET_MARKER_SIZE_M / MARKER_FILL / 2
+        target_plate = (
+            f'<geom name="{TARGET_PLATE_GEOM}" type="box" size="{_f(plate, plate, 0.0008)}" '
+            f'material="aruco_{TARGET_MARKER_ID}" contype="0" conaffinity="0"/>'
+        )
+        marker_assets = "".join(
+            f'<texture name="aruco_{i}" type="2d" builtin="flat" width="{MARKER_TEXTURE_PX}" '
+            f'height="{MARKER_TEXTURE_PX}" rgb1="1 1 1"/><material name="aruco_{i}" '
+            f'texture="aruco_{i}" specular="0" shininess="0"/>'
+            for i in (TARGET_MARKER_ID, EE_MARKER_ID)
+        )
     cams = []
     for cam in rig.cameras:
         quat = _quat_from_R(cam.base_R_cam_mujoco())
@@ -276,6 +316,7 @@ def build_mjcf(spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None) 
     <texture name="table" type="2d" builtin="checker" rgb1="0.72 0.66 0.58" rgb2="0.66 0.60 0.52" width="64" height="64"/>
     <material name="table" texture="table" texrepeat="8 8"/>
     <material name="marker" rgba="0.9 0.1 0.1 1"/>
+    {marker_assets}
   </asset>
   <worldbody>
     <light name="key" pos="0.3 -0.4 1.2" dir="-0.2 0.3 -1" diffuse="0.7 0.7 0.7" castshadow="false"/>
@@ -283,8 +324,9 @@ def build_mjcf(spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None) 
     <geom name="{TABLE_GEOM}" type="box" size="0.6 0.6 0.02" pos="0.1 0 -0.02" material="table" contype="1" conaffinity="1" friction="0.8 0.01 0.001"/>
     {arm}
     <body name="{TARGET_BODY}" mocap="true" pos="0.16 0 0.1">
-      <site name="{TARGET_SITE}" type="sphere" size="0.008" rgba="0.9 0.1 0.1 0.7"/>
-      <geom name="{MARKER_GEOM}" type="sphere" size="0.008" material="marker" contype="0" conaffinity="0"/>
+      <site name="{TARGET_SITE}" type="sphere" size="0.008" rgba="{"0 0 0 0" if markers else "0.9 0.1 0.1 0.7"}"/>
+      <geom name="{MARKER_GEOM}" type="sphere" size="{"0.001" if markers else "0.008"}" material="marker" contype="0" conaffinity="0"/>
+      {target_plate}
     </body>{cube}
     {path}
     {"".join(cams)}
@@ -293,9 +335,11 @@ def build_mjcf(spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None) 
 """
 
 
-def build_model(spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None) -> mujoco.MjModel:
+def build_model(
+    spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None, markers: bool = False
+) -> mujoco.MjModel:
     """Compile the MJCF; the compiled model is the nominal one that DR restores to."""
-    return mujoco.MjModel.from_xml_string(build_mjcf(spec, scene, rig))
+    return mujoco.MjModel.from_xml_string(build_mjcf(spec, scene, rig, markers))
 
 
 def gripper_rad_to_finger_m(spec: ArmSpec, angle_rad: float) -> float:
@@ -312,3 +356,58 @@ def finger_m_to_gripper_rad(spec: ArmSpec, finger_m: float) -> float:
         raise ConfigError(f"spec {spec.name!r} has no gripper")
     frac = float(np.clip(2 * finger_m / g.max_gap_m, 0.0, 1.0))
     return g.closed_rad + frac * (g.open_rad - g.closed_rad)
+
+
+class ArmTwin:
+    """Actuator vectors (rad) ↔ MuJoCo state for one compiled model, ids resolved once.
+
+    The env, ``SimArm`` and the virtual cameras all move the arm through this, so the wrist
+    coupling and the gripper angle ↔ finger mapping live in one place.
+    """
+
+    def __init__(self, model: mujoco.MjModel, spec: ArmSpec) -> None:
+        self.spec = spec
+        self.qadr = np.array([model.joint(n).qposadr[0] for n in spec.joint_names])
+        self.dofadr = np.array([model.joint(n).dofadr[0] for n in spec.joint_names])
+        self.wrist_qadr = int(model.joint(WRIST_JOINT).qposadr[0])
+        self.has_gripper = spec.gripper is not None
+        self.finger_qadr = (
+            np.array([model.joint(n).qposadr[0] for n in FINGER_JOINTS])
+            if self.has_gripper
+            else np.zeros(0, dtype=int)
+        )
+        self.tool_site = model.site(TOOL_SITE).id
+        self.n_joints = spec.n_joints
+        j = spec.joints
+        self._s1, self._s2 = j[1].sign, j[2].sign
+
+    def set_pose(self, data: mujoco.MjData, q_rad: np.ndarray, gripper_rad: float | None) -> None:
+        """Place the arm kinematically (call mj_forward/mj_kinematics afterwards)."""
+        data.qpos[self.qadr] = q_rad[: self.n_joints]
+        data.qpos[self.wrist_qadr] = -(self._s1 * q_rad[1] + self._s2 * q_rad[2])
+        if self.has_gripper and gripper_rad is not None:
+            data.qpos[self.finger_qadr] = gripper_rad_to_finger_m(self.spec, gripper_rad)
+
+    def write_ctrl(
+        self, data: mujoco.MjData, joint_ctrl_rad: np.ndarray, gripper_rad: float | None
+    ) -> None:
+        data.ctrl[: self.n_joints] = joint_ctrl_rad
+        if self.has_gripper and gripper_rad is not None:
+            data.ctrl[self.n_joints] = gripper_rad_to_finger_m(self.spec, gripper_rad)
+
+    def joint_positions(self, data: mujoco.MjData) -> np.ndarray:
+        return data.qpos[self.qadr]
+
+    def joint_velocities(self, data: mujoco.MjData) -> np.ndarray:
+        return data.qvel[self.dofadr]
+
+    def gripper_rad(self, data: mujoco.MjData) -> float:
+        return finger_m_to_gripper_rad(self.spec, float(data.qpos[self.finger_qadr[0]]))
+
+    def actuator_positions(self, data: mujoco.MjData) -> np.ndarray:
+        """(n_actuators,) joints then gripper, as a servo bus would list them."""
+        q = data.qpos[self.qadr]
+        return np.append(q, self.gripper_rad(data)) if self.has_gripper else q.copy()
+
+    def tool_position(self, data: mujoco.MjData) -> np.ndarray:
+        return data.site_xpos[self.tool_site]

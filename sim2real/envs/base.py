@@ -19,9 +19,8 @@ import mujoco
 import numpy as np
 
 from hardware.spec import ArmSpec, load_spec
-from sim2real import model as names
 from sim2real.errors import ConfigError, UnknownNameError
-from sim2real.model import RigSpec, build_model, finger_m_to_gripper_rad, gripper_rad_to_finger_m
+from sim2real.model import ArmTwin, RigSpec, build_model
 from sim2real.observation import ActionDecoder, ObservationBuilder, ObsField
 from sim2real.randomization import DomainRandomizer, ModelIds, load_preset
 from sim2real.randomization.actuation import ServoActuation
@@ -192,14 +191,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
 
         spec = self.spec_arm
         n_j = spec.n_joints
-        self._qadr = np.array([self.model.joint(n).qposadr[0] for n in spec.joint_names])
-        self._wrist_qadr = self.model.joint(names.WRIST_JOINT).qposadr[0]
-        self._has_gripper = spec.gripper is not None
-        if self._has_gripper:
-            self._finger_qadr = np.array(
-                [self.model.joint(n).qposadr[0] for n in names.FINGER_JOINTS]
-            )
-        self._tool_site = self.model.site(names.TOOL_SITE).id
+        self.twin = ArmTwin(self.model, spec)
+        self._qadr = self.twin.qadr
+        self._tool_site = self.twin.tool_site
         self.decoder = ActionDecoder(spec, max_delta_rad, use_gripper=self.task.uses_gripper)
         self._n_readings = n_j + (1 if self.task.uses_gripper else 0)
         self._n_act = self.decoder.n_actions
@@ -323,25 +317,20 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         return self.data.qpos[self._qadr]
 
     def gripper_angle_rad(self) -> float:
-        return finger_m_to_gripper_rad(self.spec_arm, float(self.data.qpos[self._finger_qadr[0]]))
+        return self.twin.gripper_rad(self.data)
 
     @property
     def steps(self) -> int:
         return self._steps
 
+    def _gripper_target(self) -> float | None:
+        return float(self._targets[-1]) if self.twin.has_gripper else None
+
     def _set_arm_qpos(self, q_rad: np.ndarray) -> None:
-        self.data.qpos[self._qadr] = q_rad
-        j = self.spec_arm.joints
-        self.data.qpos[self._wrist_qadr] = -(j[1].sign * q_rad[1] + j[2].sign * q_rad[2])
-        if self._has_gripper:
-            finger = gripper_rad_to_finger_m(self.spec_arm, float(self._targets[-1]))
-            self.data.qpos[self._finger_qadr] = finger
+        self.twin.set_pose(self.data, q_rad, self._gripper_target())
 
     def _write_ctrl(self, joint_ctrl_rad: np.ndarray) -> None:
-        n = self.spec_arm.n_joints
-        self.data.ctrl[:n] = joint_ctrl_rad
-        if self._has_gripper:
-            self.data.ctrl[n] = gripper_rad_to_finger_m(self.spec_arm, float(self._targets[-1]))
+        self.twin.write_ctrl(self.data, joint_ctrl_rad, self._gripper_target())
 
     def sense(self) -> Sensed:
         rng = self.np_random
