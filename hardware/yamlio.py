@@ -12,21 +12,29 @@ from __future__ import annotations
 import math
 import os
 import re
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from hardware.atomic import atomic_write_text
 from hardware.errors import YamlError
 
 _INT_RE = re.compile(r"^[-+]?(0|[1-9][0-9_]*)$")
-_FLOAT_RE = re.compile(r"^[-+]?(\.[0-9]+|[0-9][0-9_]*(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
+# Floats exactly as PyYAML resolves them (a dot is required, an exponent needs its sign), so
+# that a string PyYAML writes unquoted, such as '1e5' or '0E0', reads back as a string here too.
+_FLOAT_RE = re.compile(
+    r"^(?:[-+]?[0-9][0-9_]*\.[0-9_]*(?:[eE][-+][0-9]+)?|\.[0-9][0-9_]*(?:[eE][-+][0-9]+)?)$"
+)
 _INF = {
-    ".inf": math.inf,
-    "+.inf": math.inf,
-    "-.inf": -math.inf,
-    ".Inf": math.inf,
-    "-.Inf": -math.inf,
+    f"{sign}.{word}": (-math.inf if sign == "-" else math.inf)
+    for sign in ("", "+", "-")
+    for word in ("inf", "Inf", "INF")
+}
+# Words PyYAML (YAML 1.1) reads as booleans: written quoted so PyYAML reads them back as strings.
+_YAML11_BOOL = {
+    w
+    for base in ("yes", "no", "on", "off", "true", "false")
+    for w in (base, base.title(), base.upper())
 }
 _NAN = {".nan", ".NaN", ".NAN"}
 _BOOL = {"true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False}
@@ -73,13 +81,47 @@ def parse_scalar(token: str, line_no: int = 0) -> Any:
     return tok
 
 
+def _split_flow_items(inner: str, text: str, line_no: int) -> list[str]:
+    """Split ``a, "b, c", 'd'`` at the commas outside quotes."""
+    items: list[str] = []
+    current: list[str] = []
+    quote = ""
+    i = 0
+    while i < len(inner):
+        ch = inner[i]
+        if quote:
+            current.append(ch)
+            if quote == '"' and ch == "\\" and i + 1 < len(inner):
+                current.append(inner[i + 1])
+                i += 1
+            elif ch == quote:
+                if quote == "'" and inner[i + 1 : i + 2] == "'":
+                    current.append("'")
+                    i += 1
+                else:
+                    quote = ""
+        elif ch in "'\"" and not "".join(current).strip():
+            quote = ch
+            current.append(ch)
+        elif ch in "[]{}":
+            raise YamlError(f"line {line_no}: nested flow collections are not supported: {text!r}")
+        elif ch == ",":
+            items.append("".join(current))
+            current = []
+        else:
+            current.append(ch)
+        i += 1
+    if quote:
+        raise YamlError(f"line {line_no}: unterminated quote in {text!r}")
+    items.append("".join(current))
+    return items
+
+
 def _parse_flow_seq(text: str, line_no: int) -> list[Any]:
     inner = text.strip()[1:-1].strip()
     if not inner:
         return []
-    if "[" in inner or "{" in inner:
-        raise YamlError(f"line {line_no}: nested flow collections are not supported: {text!r}")
-    return [parse_scalar(part, line_no) for part in inner.split(",")]
+    return [parse_scalar(part, line_no) for part in _split_flow_items(inner, text, line_no)]
 
 
 def _value(text: str, line_no: int) -> Any:
@@ -220,6 +262,8 @@ def format_scalar(value: Any) -> str:
     if hasattr(value, "item") and callable(value.item):  # numpy scalar
         return format_scalar(value.item())
     text = str(value)
+    if text in _YAML11_BOOL:  # PyYAML would read these plain words as booleans
+        return f'"{text}"'
     parsed = parse_scalar(text) if _PLAIN_SAFE.match(text) else None
     if isinstance(parsed, str) and parsed == text and not text.endswith(" "):
         return text
@@ -276,22 +320,6 @@ def dumps(data: Mapping[str, Any], header: str = "") -> str:
     lines = [f"# {h}" if h else "#" for h in header.splitlines()] if header else []
     _dump(data, 0, lines)
     return "\n".join(lines) + "\n"
-
-
-def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Write via a temp file in the same folder and ``os.replace``: readers never see half a file."""
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def dump(path: str | os.PathLike[str], data: Mapping[str, Any], header: str = "") -> None:

@@ -49,8 +49,11 @@ TARGET_MARKER_SIZE_M = 0.04
 EE_MARKER_SIZE_M = 0.03
 MARKER_TEXTURE_PX = 96  # texture side; the black square covers MARKER_FILL of it
 MARKER_FILL = 0.75
-# Where the ee marker sits on the wrist body (plate centre, on a riser above the wrist link).
-EE_MARKER_POS_M = (0.02, 0.0, 0.016)
+# Where the ee marker sits on the wrist body (plate centre, on a riser above the wrist link),
+# tilted forward so the cameras in front never see it edge-on (a flat plate is unreadable when
+# the gripper is high and the view grazes it).
+EE_MARKER_POS_M = (0.02, 0.0, 0.022)
+EE_MARKER_TILT_RAD = 0.7
 
 PHYSICS_TIMESTEP_S = 0.005
 # Position-servo stiffness: the stall torque is reached at this tracking error.
@@ -194,8 +197,8 @@ def _arm_xml(spec: ArmSpec, markers: bool = False) -> tuple[str, str]:
         plate = EE_MARKER_SIZE_M / MARKER_FILL / 2
         mx, my, mz = EE_MARKER_POS_M
         ee_marker = f"""
-              <geom name="ee_marker_riser" type="box" size="0.008 0.008 {_f((mz - 0.008) / 2)}" pos="{_f(mx, my, 0.008 + (mz - 0.008) / 2)}" rgba="0.2 0.2 0.2 1" contype="0" conaffinity="0" mass="0.001"/>
-              <geom name="{EE_MARKER_GEOM}" type="box" size="{_f(plate, plate, 0.0008)}" pos="{_f(mx, my, mz)}" material="aruco_{EE_MARKER_ID}" contype="0" conaffinity="0" mass="0.002"/>"""
+              <geom name="ee_marker_post" type="box" size="0.004 0.004 {_f((mz - 0.008) / 2)}" pos="{_f(mx - 0.014, my, 0.008 + (mz - 0.008) / 2)}" rgba="0.2 0.2 0.2 1" contype="0" conaffinity="0" mass="0.001"/>
+              <geom name="{EE_MARKER_GEOM}" type="box" size="{_f(plate, plate, 0.0008)}" pos="{_f(mx, my, mz)}" euler="0 {_f(EE_MARKER_TILT_RAD)} 0" material="aruco_{EE_MARKER_ID}" contype="0" conaffinity="0" mass="0.002"/>"""
     return (
         f"""
     <body name="base" pos="0 0 0">
@@ -325,7 +328,7 @@ def build_mjcf(
     {arm}
     <body name="{TARGET_BODY}" mocap="true" pos="0.16 0 0.1">
       <site name="{TARGET_SITE}" type="sphere" size="0.008" rgba="{"0 0 0 0" if markers else "0.9 0.1 0.1 0.7"}"/>
-      <geom name="{MARKER_GEOM}" type="sphere" size="{"0.001" if markers else "0.008"}" material="marker" contype="0" conaffinity="0"/>
+      <geom name="{MARKER_GEOM}" type="sphere" size="0.008" material="marker" rgba="{"0 0 0 0" if markers else "0.9 0.1 0.1 1"}" contype="0" conaffinity="0"/>
       {target_plate}
     </body>{cube}
     {path}

@@ -24,6 +24,16 @@ class Command:
 COMMANDS: tuple[Command, ...] = (
     Command("envs", "sim2real.cli.envs", "list the registered environments"),
     Command("demo", "sim2real.cli.demo", "run the main job end to end on embedded defaults"),
+    Command("train", "sim2real.cli.train", "train a policy into a run directory (or resume one)"),
+    Command("evaluate", "sim2real.cli.evaluate", "held-out success, video, transfer-gap sweep"),
+    Command("compare", "sim2real.cli.compare", "compare algorithms over seeds: report + plots"),
+    Command("export", "sim2real.cli.export", "export a policy to ONNX or numpy (no torch)"),
+    Command(
+        "calibrate", "sim2real.cli.calibrate", "calibrate cameras, check them, register to the arm"
+    ),
+    Command("arm", "sim2real.cli.arm", "servo arm: emulate, ping, home, jog, calibrate"),
+    Command("deploy", "sim2real.cli.deploy", "run a policy on a simulated, emulated or real arm"),
+    Command("sysid", "sim2real.cli.sysid", "fit the servo model to logs; write spec + DR centre"),
 )
 
 

@@ -337,12 +337,12 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         q = self.data.qpos[self._qadr]
         if self.task.uses_gripper:
             q = np.append(q, self.gripper_angle_rad())
-        joints = self.sensors.read_joints(q, rng)
         pts = self._points_buf
         pts[0] = self.data.site_xpos[self._tool_site]
         pts[1:] = self.task.true_points(self)
-        est = self.sensors.read_points(pts, rng)
-        joints, est = self.sensors.delay(joints, est)
+        joints, est = self.sensors.read(q, pts, rng)
+        if self.sensors.delay_steps:
+            joints, est = self.sensors.delay(joints, est)
         return Sensed(joints, est[0], est[1:])
 
     def _observe(self) -> Any:

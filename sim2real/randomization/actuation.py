@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from hardware.spec import ArmSpec
-from sim2real.randomization.base import ModelIds
+from sim2real.randomization.base import ModelIds, NoiseBuffer
 from sim2real.randomization.config import Range
 
 Params = dict[str, Any]
@@ -48,6 +48,7 @@ class ServoActuation:
         )
         self._applied = np.zeros(n)
         self._queue: deque[np.ndarray] = deque()
+        self._noise = NoiseBuffer(n)
 
     def configure(self, params: Params) -> None:
         self.latency_steps = int(params["latency_steps"])
@@ -57,6 +58,7 @@ class ServoActuation:
         self.quantum_rad = float(params["quantisation_rad"])
 
     def reset(self, targets_rad: np.ndarray) -> None:
+        self._noise.clear()
         self._applied = np.array(targets_rad, dtype=float)
         self._queue = deque([self._applied.copy() for _ in range(self.latency_steps)])
 
@@ -64,7 +66,7 @@ class ServoActuation:
         """Hot path (every env step): plain ufuncs, no np.clip/np.where wrappers."""
         cmd = targets_rad
         if self.noise_rad > 0:
-            cmd = cmd + rng.normal(0.0, self.noise_rad, self._n)
+            cmd = cmd + self.noise_rad * self._noise.take(rng)
         if self.latency_steps:
             self._queue.append(cmd)
             cmd = self._queue.popleft()

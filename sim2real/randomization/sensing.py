@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.randomization.base import ModelIds
+from sim2real.randomization.base import ModelIds, NoiseBuffer
 from sim2real.randomization.config import Range
 
 Params = dict[str, Any]
@@ -60,6 +60,7 @@ class SensorModel:
             }
         )
         self._history: deque[tuple[np.ndarray, ...]] = deque()
+        self._noise: NoiseBuffer | None = None
 
     def configure(self, params: Params) -> None:
         self.joint_noise = float(params["joint_noise_rad"])
@@ -101,6 +102,28 @@ class SensorModel:
             out += (rng.standard_normal(points_m.shape) * scale) @ self._R.T
         return out
 
+    def read(
+        self, q_rad: np.ndarray, points_m: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Joint readings (n,) and point estimates (k, 3) from one block of pre-drawn noise:
+        the env's per-step path (``read_joints``/``read_points`` are the readable reference)."""
+        n, k = self._n, len(points_m)
+        if self._noise is None or self._noise.dim != n + 3 * k:
+            self._noise = NoiseBuffer(n + 3 * k)
+        z = self._noise.take(rng)
+        joints = q_rad + self.joint_bias
+        if self.joint_noise > 0:
+            joints += self.joint_noise * z[:n]
+        if self._resolution > 0:
+            joints = np.rint(joints * self._inv_resolution) * self._resolution
+        points = points_m + self.pos_bias
+        if self.px_noise > 0:
+            depth = (points_m - self._cam_p) @ self._cam_z
+            scale = np.multiply.outer(depth, self._sigma_coef)
+            scale[:, 2] *= depth
+            points += (z[n:].reshape(k, 3) * scale) @ self._R.T
+        return joints, points
+
     def delay(self, *readings: np.ndarray) -> tuple[np.ndarray, ...]:
         """Observation delay: returns the readings from ``delay_steps`` calls ago."""
         if self.delay_steps == 0:
@@ -110,3 +133,5 @@ class SensorModel:
 
     def reset(self) -> None:
         self._history.clear()
+        if self._noise is not None:
+            self._noise.clear()

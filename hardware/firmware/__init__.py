@@ -1,0 +1,1 @@
+"""Firmware for the arm: the arm3 Arduino sketch (C++) and its limits header generator."""

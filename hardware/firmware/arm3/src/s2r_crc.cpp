@@ -1,0 +1,19 @@
+#include "s2r_crc.h"
+
+namespace arm3 {
+
+// Bitwise, no table: 256 bytes of table would cost an eighth of an Uno's RAM.
+uint16_t crc16_update(uint16_t crc, uint8_t byte) {
+  crc ^= static_cast<uint16_t>(byte) << 8;
+  for (uint8_t bit = 0; bit < 8; ++bit) {
+    crc = (crc & 0x8000) ? static_cast<uint16_t>((crc << 1) ^ 0x1021) : static_cast<uint16_t>(crc << 1);
+  }
+  return crc;
+}
+
+uint16_t crc16(const uint8_t* data, size_t len, uint16_t crc) {
+  for (size_t i = 0; i < len; ++i) crc = crc16_update(crc, data[i]);
+  return crc;
+}
+
+}  // namespace arm3

@@ -1,0 +1,27 @@
+// Host-side stand-in for the few Arduino APIs arm3.ino uses, so g++ can compile the sketch.
+#pragma once
+#include <stddef.h>
+#include <stdint.h>
+
+#include <deque>
+#include <vector>
+
+unsigned long millis();
+
+struct FakeSerial {
+  std::deque<uint8_t> rx;
+  std::vector<uint8_t> tx;
+  void begin(unsigned long) {}
+  int available() { return static_cast<int>(rx.size()); }
+  int read() {
+    if (rx.empty()) return -1;
+    const uint8_t b = rx.front();
+    rx.pop_front();
+    return b;
+  }
+  size_t write(const uint8_t* data, size_t len) {
+    tx.insert(tx.end(), data, data + len);
+    return len;
+  }
+};
+extern FakeSerial Serial;

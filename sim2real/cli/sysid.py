@@ -1,0 +1,76 @@
+"""``sim2real sysid``: fit the servo model to logged trajectories, or record an excitation."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+from sim2real.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("logs", nargs="*", type=Path, help="trajectory logs (.npz) to fit")
+    parser.add_argument("--out", type=Path, default=None, help="write the updated ArmSpec here")
+    parser.add_argument(
+        "--spec", default=None, help="ArmSpec the logs came from (default: shipped)"
+    )
+    parser.add_argument("--droop", action="store_true", help="also fit gravity droop")
+    parser.add_argument(
+        "--record", type=Path, default=None, help="run the excitation and write a log here"
+    )
+    parser.add_argument("--backend", default="mock", help="mock | serial (with --record)")
+    parser.add_argument("--protocol", default="feetech", help="s2r | feetech | maestro")
+    parser.add_argument("--port", default=None, help="serial port (with --backend serial)")
+    parser.add_argument("--rate", type=float, default=100.0, help="excitation rate in Hz")
+    parser.add_argument("--json", action="store_true")
+
+
+def _record(args: argparse.Namespace) -> int:
+    from hardware.serial_arm import SerialArm
+    from hardware.spec import load_spec
+    from sim2real.sysid.record import record_excitation, save_log
+
+    spec = load_spec(args.spec)
+    if args.backend == "mock":
+        from hardware.emulator.server import Emulator
+
+        with Emulator(spec, args.protocol) as emu, SerialArm(spec, emu.port, args.protocol) as arm:
+            log = record_excitation(arm, args.rate)
+    elif args.backend == "serial":
+        if not args.port:
+            raise ConfigError("--backend serial needs --port")
+        with SerialArm(spec, args.port, args.protocol) as arm:
+            log = record_excitation(arm, args.rate)
+    else:
+        raise ConfigError(f"--backend {args.backend!r} is not one of mock, serial")
+    save_log(args.record, log)
+    print(json.dumps({"log": str(args.record), "periods": len(log["t_s"])}))
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.record is not None:
+        if args.logs:
+            raise ConfigError("give either LOG files to fit or --record, not both")
+        return _record(args)
+    if not args.logs:
+        raise ConfigError("no logs given: sim2real sysid LOG [LOG ...] --out spec.yaml")
+    from hardware.spec import load_spec
+    from sim2real.sysid.apply import write_outputs
+    from sim2real.sysid.fit import fit_servo, load_log
+
+    spec = load_spec(args.spec)
+    trajs = [load_log(p, spec.n_joints) for p in args.logs]
+    fit, rms = fit_servo(trajs, spec, fit_droop=args.droop)
+    summary = {**asdict(fit), "rms_rad": rms, "logs": [str(p) for p in args.logs]}
+    if args.out is not None:
+        spec_path, preset = write_outputs(args.out, spec, fit, rms, [p.name for p in args.logs])
+        summary.update(spec=str(spec_path), dr_preset=str(preset))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for key, value in summary.items():
+            print(f"{key:18s} {value}")
+    return 0

@@ -1,0 +1,134 @@
+"""``SimArm``: the ``hardware.Arm`` interface on MuJoCo physics.
+
+It derives from ``hardware.arm.ArmBase``, so the same safety filter, e-stop and lifecycle sit in
+front of it as in front of a real servo bus, and it passes the same contract test suite. Servo
+behaviour between the command and the horn comes from the same ``ServoActuation`` layer the envs
+use. Time: ``clock="lockstep"`` advances one control period per command (fast, deterministic);
+``clock="realtime"`` steps physics to catch up with the wall clock on every call, as a real arm
+keeps moving while the host thinks.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import mujoco
+import numpy as np
+
+from hardware.arm import ArmBase, ArmState
+from hardware.spec import ArmSpec
+from sim2real.errors import UnknownNameError
+from sim2real.model import ArmTwin, RigSpec, build_model
+from sim2real.randomization.actuation import ServoActuation
+
+CLOCKS = ("lockstep", "realtime")
+
+
+class SimArm(ArmBase):
+    """A simulated arm: torque off really lets it sag under gravity."""
+
+    def __init__(
+        self,
+        spec: ArmSpec,
+        *,
+        scene: str = "reach",
+        rig: RigSpec | None = None,
+        control_hz: float = 20.0,
+        clock: str = "lockstep",
+        max_step_rad: float | None = None,
+        on_nonfinite: str = "hold",
+    ) -> None:
+        if clock not in CLOCKS:
+            raise UnknownNameError("clock", clock, CLOCKS)
+        # No host watchdog: in lockstep, simulated time does not pass between commands.
+        super().__init__(
+            spec, max_step_rad=max_step_rad, on_nonfinite=on_nonfinite, host_watchdog_s=None
+        )
+        self.model = build_model(spec, scene, rig)
+        self.data = mujoco.MjData(self.model)
+        self.twin = ArmTwin(self.model, spec)
+        self.clock = clock
+        self.control_dt_s = 1.0 / control_hz
+        self.frame_skip = max(1, round(self.control_dt_s / self.model.opt.timestep))
+        self.servo = ServoActuation(spec, self.control_dt_s, spec.n_joints)
+        n = spec.n_joints
+        self._gain = self.model.actuator_gainprm[:, 0].copy()
+        self._bias = self.model.actuator_biasprm[:, :3].copy()
+        self._targets = spec.actuator_park_rad.copy()
+        self._n = n
+        self._wall_t0 = 0.0
+        # Every target vector applied, oldest first (bounded): what the contract tests compare
+        # with what command() returned.
+        self.received: deque[np.ndarray] = deque(maxlen=10_000)
+
+    # ---- time -------------------------------------------------------------------------------
+    def _advance(self, seconds: float) -> None:
+        steps = int(seconds / self.model.opt.timestep)
+        if steps > 0:
+            mujoco.mj_step(self.model, self.data, nstep=steps)
+
+    def _catch_up(self) -> None:
+        if self.clock == "realtime":
+            behind = (time.monotonic() - self._wall_t0) - self.data.time
+            self._advance(behind)
+
+    # ---- hooks ------------------------------------------------------------------------------
+    def _connect(self) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        park = self.spec.actuator_park_rad
+        grip = float(park[-1]) if self.twin.has_gripper else None
+        self.twin.set_pose(self.data, park, grip)
+        self._set_torque(False, None)
+        mujoco.mj_forward(self.model, self.data)
+        self._wall_t0 = time.monotonic()
+
+    def _close(self) -> None:
+        """Nothing to release: the model stays inspectable after close."""
+
+    def _read_state(self) -> ArmState:
+        self._catch_up()
+        pos = self.twin.actuator_positions(self.data)
+        vel = self.twin.joint_velocities(self.data)
+        if self.twin.has_gripper:
+            vel = np.append(vel, 0.0)
+        res = self.spec.servo.resolution_rad
+        if res > 0:  # a servo reports positions in whole encoder / pulse steps
+            pos = np.rint(pos / res) * res
+        return ArmState(positions_rad=pos, timestamp_s=float(self.data.time), velocities_rad_s=vel)
+
+    def _send_targets(self, targets_rad: np.ndarray) -> np.ndarray:
+        self._catch_up()
+        self._targets = np.asarray(targets_rad, dtype=float).copy()
+        joint_ctrl = self.servo(self._targets[: self._n], np.random.default_rng(0))
+        grip = float(self._targets[-1]) if self.twin.has_gripper else None
+        self.twin.write_ctrl(self.data, joint_ctrl, grip)
+        if self.clock == "lockstep":
+            mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        res = self.spec.servo.resolution_rad
+        sent = np.rint(self._targets / res) * res if res > 0 else self._targets.copy()
+        self.received.append(sent.copy())
+        return sent
+
+    @property
+    def torque_on(self) -> bool:
+        return bool(np.all(self.model.actuator_gainprm[:, 0] > 0))
+
+    def _set_torque(self, on: bool, hold_rad: np.ndarray | None) -> None:
+        m = self.model
+        if on:
+            m.actuator_gainprm[:, 0] = self._gain
+            m.actuator_biasprm[:, :3] = self._bias
+            hold = self.twin.actuator_positions(self.data) if hold_rad is None else hold_rad
+            self._targets = np.asarray(hold, dtype=float).copy()
+            self.servo.reset(self._targets[: self._n])
+            grip = float(self._targets[-1]) if self.twin.has_gripper else None
+            self.twin.write_ctrl(self.data, self._targets[: self._n], grip)
+        else:  # a detached hobby servo applies no torque at all
+            m.actuator_gainprm[:, 0] = 0.0
+            m.actuator_biasprm[:, :3] = 0.0
+
+    # ---- simulation access (the deploy loop's ground truth) -------------------------------------
+    def tool_position(self) -> np.ndarray:
+        self._catch_up()
+        return self.twin.tool_position(self.data).copy()

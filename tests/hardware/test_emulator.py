@@ -1,0 +1,276 @@
+"""The emulator: a real pty any serial program can open, servo dynamics, wire timing, baud
+checks, fault injection, brown-out, unplug and the firmware watchdog."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import serial
+
+from hardware.emulator import Emulator, EmulatorConfig, FaultConfig
+from hardware.emulator.dynamics import ServoBank, ServoParams
+from hardware.errors import DeviceResetError, HardwareError, NoReplyError, PortError, SafetyError
+from hardware.protocols import s2r
+from hardware.protocols.s2r import S2RFramer, encode_frame
+from hardware.serial_arm import SerialArm
+from hardware.spec import ArmSpec
+
+
+# ---- dynamics -----------------------------------------------------------------------------------
+def _bank(spec: ArmSpec, **kw: float) -> ServoBank:
+    return ServoBank(ServoParams.from_spec(spec, **kw), np.zeros(spec.n_actuators))
+
+
+def test_rate_limit_lag_deadband_and_quantisation(spec: ArmSpec) -> None:
+    dt = 0.001
+    bank = _bank(spec)
+    target = np.array([1.0, 0.0, 0.0, 0.0])
+    on = np.ones(4, dtype=bool)
+    speeds = []
+    for _ in range(2000):
+        bank.step(dt, target, on)
+        speeds.append(bank.vel[0])
+    assert max(speeds) <= spec.servo.max_speed_rad_s + 1e-9  # rate limit
+    assert max(speeds) == pytest.approx(spec.servo.max_speed_rad_s)  # and it is reached
+    assert abs(bank.pos[0] - 1.0) <= spec.servo.deadband_rad  # arrives, within the deadband
+    # small step: pure first-order lag -> 63 % after one time constant
+    bank = _bank(spec)
+    small = np.array([0.05, 0.0, 0.0, 0.0])
+    for _ in range(round(spec.servo.time_constant_s / dt)):
+        bank.step(dt, small, on)
+    assert bank.pos[0] == pytest.approx(0.05 * (1 - np.exp(-1)), rel=0.02)
+    # inside the deadband nothing moves
+    bank = _bank(spec)
+    bank.step(0.1, np.full(4, spec.servo.deadband_rad * 0.9), on)
+    assert np.all(bank.pos == 0.0)
+    # unpowered servos do not move at all
+    bank.step(0.1, np.ones(4), np.zeros(4, dtype=bool))
+    assert np.all(bank.pos == 0.0)
+    # readings are quantised to the resolution
+    bank.pos = np.array([0.00123, 0.5, -0.3, 0.7])
+    r = bank.reading_rad() / spec.servo.resolution_rad
+    np.testing.assert_allclose(r, np.round(r), atol=1e-9)
+
+
+def test_droop_and_noise(spec: ArmSpec) -> None:
+    bank = ServoBank(
+        ServoParams.from_spec(spec, droop_rad=0.03, noise_rad=0.01), np.zeros(4), seed=1
+    )
+    for _ in range(500):
+        bank.step(0.002, np.zeros(4), np.ones(4, dtype=bool))
+    # the pitch joints (shoulder, elbow) sag; yaw and gripper do not
+    assert bank.pos[1] == pytest.approx(-0.03, abs=spec.servo.deadband_rad)
+    assert bank.pos[2] == pytest.approx(-0.03, abs=spec.servo.deadband_rad)
+    assert bank.pos[0] == 0.0 and bank.pos[3] == 0.0
+    readings = np.array([bank.reading_rad()[0] for _ in range(400)])
+    assert 0.006 < readings.std() < 0.014
+
+
+# ---- the pty ------------------------------------------------------------------------------------
+def test_plain_pyserial_talks_to_it_and_link_is_cleaned_up(spec: ArmSpec, tmp_path: Path) -> None:
+    link = tmp_path / "arm3"
+    with Emulator(spec, "s2r", link=link) as emu:
+        assert link.is_symlink() and os.readlink(link) == emu.device_path
+        with serial.Serial(str(link), 115200, timeout=0.5) as port:
+            port.write(b"\x00garbage\xa5" + encode_frame(9, s2r.PING))
+            frames: list[s2r.S2RFrame] = []
+            framer = S2RFramer()
+            deadline = time.monotonic() + 2
+            while not frames and time.monotonic() < deadline:
+                frames = framer.feed(port.read(64), 0.0)
+            assert frames and frames[0].seq == 9 and frames[0].type == s2r.PING | s2r.REPLY
+            pong = s2r.PongPayload.decode(frames[0].payload)
+            assert pong.n_actuators == spec.n_actuators and pong.watchdog_ms == 250
+        assert emu.stats()["device_garbage_bytes"] == 9
+        assert emu.true_positions_rad().shape == (spec.n_actuators,)
+    assert not link.exists()
+
+
+def test_wire_time_follows_the_baud(spec: ArmSpec, make_emulator: Callable[..., Emulator]) -> None:
+    def p50(baud: int) -> float:
+        emu = make_emulator(spec, "s2r", EmulatorConfig(baud=baud))
+        with SerialArm(spec, emu.port, baud=baud) as arm:
+            arm.enable()
+            times = []
+            for _ in range(30):
+                t = time.perf_counter()
+                arm.command(spec.actuator_park_rad)
+                times.append(time.perf_counter() - t)
+        return float(np.median(times))
+
+    slow, fast = p50(115200), p50(1_000_000)
+    request, reply = 8 + 2 * 4, 8 + 3 + 4 * 4
+    assert slow >= (request + reply) * 10 / 115200  # the bytes take that long on the wire
+    assert slow > fast + 0.002
+
+
+def test_wrong_baud_gives_no_reply_with_a_baud_hint(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(spec, "s2r")
+    arm = SerialArm(spec, emu.port, baud=9600, timeout_s=0.02, retries=1)
+    with pytest.raises(NoReplyError, match="baud rate.*9600 here; s2r devices default to 115200"):
+        arm.connect()
+    assert emu.stats()["baud_mismatch_chunks"] >= 2
+    assert emu.host_baud == 9600
+
+
+# ---- faults -------------------------------------------------------------------------------------
+def test_corruption_and_drops_are_detected_and_never_applied(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    faults = FaultConfig(corrupt_rate=0.1, drop_rate=0.1, delay_rate=0.02, delay_s=0.05, seed=3)
+    emu = make_emulator(spec, "s2r", EmulatorConfig(baud=1_000_000, faults=faults))
+    with SerialArm(
+        spec, emu.port, baud=1_000_000, timeout_s=0.02, retries=6, host_watchdog_s=None
+    ) as arm:
+        arm.enable()
+        emu.clear_log()
+        rng = np.random.default_rng(0)
+        sent = []
+        for _ in range(300):
+            goal = rng.uniform(spec.actuator_lower_rad, spec.actuator_upper_rad)
+            arm.command(goal)
+            sent.append(arm.last_sent_units)
+        host = arm.stats()
+    applied = [np.array(e.requested) for e in emu.applied("targets")]
+    # exactly the commands the host sent, once each, in order: none lost, none corrupted,
+    # no retransmission applied twice
+    assert len(applied) == len(sent)
+    assert all(np.array_equal(a, s) for a, s in zip(applied, sent, strict=True))
+    st = emu.stats()
+    injected = (
+        st["rx_corrupted"]
+        + st["rx_dropped"]
+        + st["tx_corrupted"]
+        + st["tx_dropped"]
+        + st["tx_delayed"]
+    )
+    assert injected > 30
+    assert st["device_crc_errors"] + st["device_header_errors"] + st["device_gap_resets"] > 0
+    assert st["device_duplicates"] > 0  # retransmissions after a lost reply were recognised
+    assert host["retries"] >= st["rx_corrupted"] + st["rx_dropped"] + st["tx_dropped"]
+    assert host["rx_crc_errors"] + host["rx_header_errors"] + host["rx_garbage_bytes"] > 0
+    assert host["stale_frames"] > 0  # the delayed replies arrived late and were discarded
+
+
+def test_brownout_is_detected_and_enable_recovers(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(spec, "s2r")
+    with SerialArm(spec, emu.port) as arm:
+        arm.enable()
+        arm.command(spec.actuator_park_rad)
+        emu.brownout()
+        with pytest.raises(DeviceResetError, match="device reset detected.*boot id"):
+            arm.command(spec.actuator_park_rad)
+        with pytest.raises(SafetyError, match="e-stop latched.*reset"):
+            arm.command(spec.actuator_park_rad)
+        assert not emu.torque_enabled().any()
+        arm.enable()
+        arm.command(spec.actuator_park_rad)
+        assert emu.torque_enabled().all()
+        limits = emu.applied("limits")
+        assert len(limits) == 2  # the RAM limits were pushed again after the reboot
+
+
+@pytest.mark.parametrize("protocol", ["feetech", "maestro"])
+def test_brownout_on_bus_and_maestro(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator], protocol: str
+) -> None:
+    emu = make_emulator(spec, protocol)
+    with SerialArm(spec, emu.port, protocol=protocol) as arm:
+        arm.enable()
+        arm.command(spec.actuator_park_rad)
+        emu.sync()  # the command (no reply on these buses) has landed before the supply dips
+        emu.brownout()
+        with pytest.raises(DeviceResetError, match="rebooted"):
+            arm.read_state()
+        arm.enable()
+        arm.command(spec.actuator_park_rad)
+        emu.sync()
+        assert emu.torque_enabled().all()
+
+
+def test_unplugged_port_is_a_clear_error(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(spec, "s2r")
+    arm = SerialArm(spec, emu.port, timeout_s=0.02)
+    arm.connect()
+    arm.enable()
+    emu.unplug()
+    with pytest.raises((PortError, NoReplyError)) as info:
+        for _ in range(20):
+            arm.command(spec.actuator_park_rad)
+            time.sleep(0.01)
+    assert "\n" not in str(info.value)
+    arm.close()  # closing after the port vanished does not raise
+
+
+def test_cut_link_trips_the_firmware_watchdog(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(spec, "s2r")
+    with SerialArm(spec, emu.port, host_watchdog_s=None) as arm:
+        arm.enable()
+        goal = spec.actuator_park_rad.copy()
+        for k in range(20):
+            goal[0] = 0.02 * k
+            arm.command(goal)
+        last_rx = emu.applied("targets")[-1].t_s
+        emu.cut()
+        assert emu.wait_until(lambda: bool(emu.applied("watchdog_detach")), timeout_s=2.0)
+        hold = emu.applied("watchdog_hold")[0].t_s
+        detach = emu.applied("watchdog_detach")[0].t_s
+        wd = spec.safety.watchdog_timeout_s
+        assert wd <= hold - last_rx <= wd + 0.005  # holds at 250 ms (+ one ms of clock granularity)
+        assert detach - hold == pytest.approx(spec.safety.hold_before_disable_s, abs=0.005)
+        assert not emu.torque_enabled().any()
+        emu.restore()
+        with pytest.raises(SafetyError, match="torque is off"):
+            arm.command(goal)
+        arm.enable()
+        arm.command(goal)
+        assert emu.torque_enabled().all()
+
+
+def test_maestro_serial_timeout(spec: ArmSpec, make_emulator: Callable[..., Emulator]) -> None:
+    emu = make_emulator(spec, "maestro", EmulatorConfig(maestro_serial_timeout_s=0.1))
+    with SerialArm(spec, emu.port, protocol="maestro", host_watchdog_s=None) as arm:
+        arm.enable()
+        arm.command(spec.actuator_park_rad)
+        time.sleep(0.2)
+        assert not emu.torque_enabled().any()
+        with pytest.raises(SafetyError, match="serial timeout"):
+            arm.read_state()
+
+
+def test_bad_configuration_is_refused(spec: ArmSpec) -> None:
+    with pytest.raises(HardwareError, match="valid: feetech, maestro, s2r"):
+        Emulator(spec, "dynamixel")
+    with pytest.raises(HardwareError, match="corrupt_rate"):
+        FaultConfig(corrupt_rate=1.5)
+    with pytest.raises(HardwareError, match="tick_s"):
+        EmulatorConfig(tick_s=0.0)
+
+
+def test_background_reader_swallows_line_noise(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(spec, "s2r", EmulatorConfig(baud=1_000_000))
+    with SerialArm(spec, emu.port, baud=1_000_000) as arm:
+        arm.enable()
+        t = time.perf_counter()
+        for _ in range(20):
+            emu.inject_tx(bytes(range(0, 250, 3)) * 4)  # noise between replies
+            arm.command(spec.actuator_park_rad)
+        elapsed = time.perf_counter() - t
+        assert arm.stats()["rx_garbage_bytes"] > 20 * 100
+        assert arm.stats()["retries"] == 0  # noise never cost a retry
+        assert elapsed < 20 * 0.05

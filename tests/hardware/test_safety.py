@@ -1,0 +1,331 @@
+"""Safety: the filter, the host watchdog, e-stop on signals, and the property that no command
+outside the limits or over the step clamp ever reaches a device.
+
+The property runs in-process (SafetyFilter -> unit quantisation -> the protocol's real encoder ->
+the emulated device's real decoder and apply path): 2,000 cases for s2r and 1,000 each for feetech
+and maestro in the default run, and 10,000 cases for s2r under the ``slow`` marker (about 20 s here: ``pytest -m slow``). A smaller
+property runs end to end through SerialArm and the emulator over a real pty.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hardware.emulator import AppliedCommand, Emulator, EmulatorConfig, FirmwareCore
+from hardware.emulator.devices import FeetechDevice, MaestroDevice
+from hardware.emulator.dynamics import ServoBank, ServoParams
+from hardware.errors import SafetyError
+from hardware.firmware.limits import firmware_limits
+from hardware.joint_calibration import ArmCalibration, nominal_calibration
+from hardware.protocols import PROTOCOLS, s2r
+from hardware.protocols.feetech import goal_packet
+from hardware.protocols.maestro import targets_packet
+from hardware.safety import SafetyFilter, Watchdog
+from hardware.serial_arm import SerialArm, quantise_targets
+from hardware.spec import ArmSpec
+
+NASTY = [math.nan, math.inf, -math.inf, 1e9, -1e9, 1e300, -1e300, 0.0]
+value_st = st.one_of(st.sampled_from(NASTY), st.floats(allow_nan=True, allow_infinity=True))
+command_st = st.tuples(value_st, value_st, value_st, value_st)
+sequence_st = st.lists(command_st, min_size=1, max_size=8)
+EPS = 1e-9
+
+
+# ---- the filter -----------------------------------------------------------------------------
+def test_filter_order_and_policy(spec: ArmSpec) -> None:
+    f = SafetyFilter(spec)
+    lo, hi, step = spec.actuator_lower_rad, spec.actuator_upper_rad, spec.safety.max_step_rad
+    prev = spec.actuator_home_rad.copy()
+    out = f.filter([math.nan, 1e9, -math.inf, prev[3]], prev)
+    assert out[0] == prev[0]  # NaN: held
+    assert out[1] == pytest.approx(prev[1] + step)  # 1e9: limit, then one step
+    assert out[2] == prev[2]  # -inf: held
+    assert f.stats.nonfinite == 1 and f.stats.limit_clamped == 1 and f.stats.step_clamped == 1
+    # a target inside the limits and within a step goes through unchanged
+    near = prev + 0.1
+    np.testing.assert_array_equal(f.filter(near, prev), np.clip(near, lo, hi))
+    # the previous target itself is brought inside the limits first
+    out = f.filter(hi + 5, hi + 5)
+    assert np.all(out <= hi)
+
+
+def test_filter_refuses_bad_shapes_and_settings(spec: ArmSpec) -> None:
+    f = SafetyFilter(spec)
+    for bad in ([1.0, 2.0], np.zeros((4, 1)), "x", None, [object()] * 4):
+        with pytest.raises(SafetyError, match="targets must"):
+            f.filter(bad, spec.actuator_home_rad)
+    with pytest.raises(SafetyError, match="cannot be switched off"):
+        SafetyFilter(spec, max_step_rad=math.inf)
+    with pytest.raises(SafetyError, match="cannot be switched off"):
+        SafetyFilter(spec, max_step_rad=0.0)
+    with pytest.raises(SafetyError, match="hold, raise"):
+        SafetyFilter(spec, on_nonfinite="ignore")
+    strict = SafetyFilter(spec, on_nonfinite="raise")
+    with pytest.raises(SafetyError, match="non-finite target.*elbow"):
+        strict.filter([0.0, 0.0, math.nan, 0.0], spec.actuator_home_rad)
+
+
+def test_clamp_is_on_by_default(spec: ArmSpec) -> None:
+    f = SafetyFilter(spec)
+    assert f.max_step_rad == spec.safety.max_step_rad > 0
+
+
+# ---- the property, in-process: 10,000 cases for s2r, 2,000 each for the others ------------------
+class _Pipeline:
+    """Host filter + quantiser + real encoder, device-side real decoder; collects the device log."""
+
+    def __init__(self, spec: ArmSpec, protocol: str) -> None:
+        self.spec = spec
+        self.protocol = protocol
+        self.frame = PROTOCOLS[protocol].unit_frame(spec)
+        self.cal: ArmCalibration = nominal_calibration(spec, protocol, self.frame)
+        self.filter = SafetyFilter(spec)
+        self.lo_u, self.hi_u = self.cal.unit_limits(spec)
+        self.step_u = self.cal.max_step_units(self.filter.max_step_rad)
+        self.log: list[AppliedCommand] = []
+        self.t_ms = 0
+        servos = ServoBank(ServoParams.from_spec(spec), spec.actuator_park_rad)
+        if protocol == "s2r":
+            self.core = FirmwareCore(firmware_limits(spec, self.cal), 1, on_log=self.log.append)
+            self.core.feed(s2r.encode_frame(0, s2r.TORQUE, b"\x01"), 0)
+        else:
+            cls = FeetechDevice if protocol == "feetech" else MaestroDevice
+            self.device = cls(
+                spec, self.cal, servos, self.log.append, 1, 0.0, {"serial_timeout_s": 0.0}
+            )
+        self.seq = 0
+        self.last_u = np.clip(self.cal.to_units(spec.actuator_park_rad), self.lo_u, self.hi_u)
+        self.prev_rad = self.cal.from_units(self.last_u)
+        if protocol != "s2r":  # bring the device's own goal to the same starting point
+            self.send(self.last_u)
+
+    def send(self, units: np.ndarray) -> None:
+        self.t_ms += 50
+        if self.protocol == "s2r":
+            self.seq = (self.seq + 1) & 0xFF
+            frame = s2r.encode_frame(self.seq, s2r.SET_TARGETS, s2r.encode_targets(units))
+            self.core.feed(frame, self.t_ms)
+        elif self.protocol == "feetech":
+            self.device.receive(goal_packet(self.spec.actuator_ids, units), self.t_ms / 1000)
+        else:
+            self.device.receive(
+                targets_packet(self.spec.actuator_ids, units, True), self.t_ms / 1000
+            )
+
+    def received_units(self, since: int) -> list[np.ndarray]:
+        entries = [e for e in self.log[since:] if e.kind == "targets"]
+        if self.protocol != "maestro":
+            return [np.array(e.requested) for e in entries]
+        # the Maestro logs one entry per channel: regroup by command
+        n = self.spec.n_actuators
+        assert len(entries) % n == 0
+        return [
+            np.array([e.requested[0] for e in entries[k : k + n]])
+            for k in range(0, len(entries), n)
+        ]
+
+
+def _check_step(pipe: _Pipeline, command: tuple[float, ...]) -> None:
+    """One policy output through the whole chain; what the device decoded must be safe."""
+    spec = pipe.spec
+    safe = pipe.filter.filter(np.array(command), pipe.prev_rad)
+    units = quantise_targets(pipe.cal, safe, pipe.last_u, pipe.lo_u, pipe.hi_u, pipe.step_u)
+    since = len(pipe.log)
+    pipe.send(units)
+    received = pipe.received_units(since)
+    assert len(received) == 1
+    u = received[0]
+    q = pipe.cal.from_units(u)
+    assert np.all(u >= pipe.lo_u) and np.all(u <= pipe.hi_u), u
+    assert np.all(np.abs(u - pipe.last_u) <= pipe.step_u), (u, pipe.last_u)
+    assert np.all(q >= spec.actuator_lower_rad - EPS) and np.all(
+        q <= spec.actuator_upper_rad + EPS
+    ), q
+    assert np.all(np.abs(q - pipe.prev_rad) <= pipe.filter.max_step_rad + EPS)
+    pipe.last_u, pipe.prev_rad = u, q
+
+
+@pytest.mark.parametrize(
+    ("protocol", "cases"),
+    [
+        pytest.param("s2r", 10_000, marks=pytest.mark.slow, id="s2r-10000"),
+        pytest.param("s2r", 2_000, id="s2r-2000"),
+        pytest.param("feetech", 1_000, id="feetech-1000"),
+        pytest.param("maestro", 1_000, id="maestro-1000"),
+    ],
+)
+def test_no_unsafe_command_reaches_the_device(spec: ArmSpec, protocol: str, cases: int) -> None:
+    """Each case is one arbitrary policy output; the arm's state carries over from case to case,
+    so every case also starts from wherever the previous ones left the arm."""
+    pipe = _Pipeline(spec, protocol)
+
+    @settings(
+        max_examples=cases, deadline=None, database=None, suppress_health_check=list(HealthCheck)
+    )
+    @given(command=command_st)
+    def prop(command: tuple[float, ...]) -> None:
+        _check_step(pipe, command)
+
+    prop()
+    assert pipe.filter.stats.commands >= cases  # the property really ran that many cases
+    assert (
+        pipe.filter.stats.nonfinite > cases // 20 and pipe.filter.stats.limit_clamped > cases // 20
+    )
+
+
+# ---- the property end to end, through a real pty ----------------------------------------------------
+@pytest.mark.parametrize(("protocol", "cases"), [("s2r", 100), ("feetech", 50), ("maestro", 50)])
+def test_no_unsafe_command_reaches_the_emulator_over_the_pty(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator], protocol: str, cases: int
+) -> None:
+    emu = make_emulator(
+        spec, protocol, EmulatorConfig(baud=1_000_000, maestro_serial_timeout_s=0.0)
+    )
+    with SerialArm(spec, emu.port, protocol=protocol, baud=1_000_000, host_watchdog_s=None) as arm:
+        arm.enable()
+        cal = arm.calibration
+        lo, hi = spec.actuator_lower_rad, spec.actuator_upper_rad
+
+        @settings(
+            max_examples=cases,
+            deadline=None,
+            database=None,
+            suppress_health_check=list(HealthCheck),
+        )
+        @given(commands=sequence_st)
+        def prop(commands: list[list[float]]) -> None:
+            prev = arm.last_sent_units
+            since = len(emu.applied())
+            sent = [arm.command(np.array(c)) for c in commands]
+            emu.sync()
+            entries = emu.applied()[since:]
+            ids = spec.actuator_ids
+            current = dict(zip(ids, prev.tolist(), strict=True))
+            vectors = []
+            for e in entries:
+                assert e.kind == "targets"
+                current.update(zip(e.ids, e.requested, strict=True))
+                if e.ids[-1] == ids[-1]:
+                    vectors.append(np.array([current[s] for s in ids]))
+            assert len(vectors) == len(commands)
+            for u, s in zip(vectors, sent, strict=True):
+                q = cal.from_units(u)
+                np.testing.assert_allclose(q, s, atol=1e-12)  # sent is what arrived
+                assert np.all(q >= lo - EPS) and np.all(q <= hi + EPS)
+                assert np.all(np.abs(u - prev) <= arm.step_units)
+                prev = u
+
+        prop()
+
+
+# ---- watchdog and e-stop ------------------------------------------------------------------------
+def test_watchdog_fires_once_and_kick_defers_it() -> None:
+    fired: list[float] = []
+    wd = Watchdog(0.05, lambda: fired.append(time.monotonic()))
+    t0 = time.monotonic()
+    wd.arm()
+    for _ in range(5):
+        time.sleep(0.02)
+        wd.kick()
+    assert not fired
+    time.sleep(0.15)
+    assert len(fired) == 1 and fired[0] - t0 >= 0.05 + 0.1 - 0.01
+    wd.arm()
+    wd.disarm()
+    time.sleep(0.1)
+    assert len(fired) == 1
+    wd.stop()
+    with pytest.raises(SafetyError):
+        Watchdog(0.0, lambda: None)
+
+
+def test_host_watchdog_estops_a_stalled_loop(
+    quick_spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(quick_spec, "feetech")  # Feetech servos have no watchdog of their own
+    with SerialArm(quick_spec, emu.port, protocol="feetech") as arm:
+        arm.enable()
+        for _ in range(5):
+            arm.command(quick_spec.actuator_home_rad)
+            time.sleep(0.02)
+        assert emu.torque_enabled().all()
+        time.sleep(
+            quick_spec.safety.watchdog_timeout_s + quick_spec.safety.hold_before_disable_s + 0.2
+        )
+        assert not emu.torque_enabled().any()
+        assert arm.estop_reason is not None and "host watchdog" in arm.estop_reason
+        with pytest.raises(SafetyError, match="host watchdog"):
+            arm.command(quick_spec.actuator_home_rad)
+        arm.enable()  # clears the latch
+        arm.command(quick_spec.actuator_home_rad)
+
+
+_SIGNAL_SCRIPT = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    from hardware.spec import load_spec
+    from hardware.serial_arm import SerialArm
+    from hardware.safety import estop_on_signals
+    spec = load_spec()
+    with SerialArm(spec, sys.argv[1], protocol="s2r") as arm:
+        arm.enable()
+        with estop_on_signals(arm):
+            print("ready", flush=True)
+            while True:
+                arm.command(spec.actuator_home_rad)
+                time.sleep(0.02)
+    """
+)
+
+
+@pytest.mark.parametrize(
+    ("sig", "code"), [(signal.SIGTERM, 128 + 15), (signal.SIGINT, -signal.SIGINT)]
+)
+def test_signal_holds_then_disables(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator], sig: int, code: int
+) -> None:
+    emu = make_emulator(spec, "s2r")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SIGNAL_SCRIPT, emu.port],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "ready"
+        time.sleep(0.2)
+        assert emu.torque_enabled().all()
+        t_sig = emu.now_s()
+        proc.send_signal(sig)
+        rc = proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == code, proc.stderr.read() if proc.stderr else ""
+    assert not emu.torque_enabled().any()
+    log = emu.applied()
+    off = [e for e in log if e.kind == "torque" and e.applied == (0,)]
+    assert off, "torque was never switched off"
+    # the firmware logs whole milliseconds: allow one
+    held = [e for e in log if e.kind == "targets" and t_sig - 0.002 <= e.t_s <= off[0].t_s]
+    assert held, f"no hold before the torque went off: {[(e.kind, e.t_s) for e in log[-8:]]}"
+    assert off[0].t_s - held[0].t_s >= spec.safety.hold_before_disable_s - 0.02
+    assert len(held) >= 5  # the hold is re-sent, so no device-side watchdog lets go early
+    assert not emu.applied("watchdog_hold")

@@ -1,0 +1,92 @@
+"""Sysid recovers the emulator's servo parameters from a logged excitation over a real pty."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hardware.emulator.server import Emulator, EmulatorConfig
+from hardware.serial_arm import SerialArm
+from hardware.spec import ArmSpec, load_spec
+from sim2real.errors import ConfigError
+from sim2real.sysid.fit import fit_servo, load_log
+from sim2real.sysid.model import ServoFit, simulate
+from sim2real.sysid.record import record_excitation, save_log
+
+SPEC = load_spec()
+DROOP_RAD = 0.03
+
+
+@pytest.fixture(scope="module")
+def excitation_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real excitation: SerialArm → pty → emulated Feetech bus with known servo dynamics."""
+    path = tmp_path_factory.mktemp("sysid") / "excite.npz"
+    config = EmulatorConfig(droop_rad=DROOP_RAD)
+    with Emulator(SPEC, "feetech", config) as emu, SerialArm(SPEC, emu.port, "feetech") as arm:
+        save_log(path, record_excitation(arm, rate_hz=100.0))
+    return path
+
+
+def test_fit_recovers_known_servo_parameters_within_10_percent(excitation_log: Path) -> None:
+    fit, rms = fit_servo([load_log(excitation_log, SPEC.n_joints)], SPEC, fit_droop=True)
+    truth = SPEC.servo
+    assert fit.time_constant_s == pytest.approx(truth.time_constant_s, rel=0.1)
+    assert fit.max_speed_rad_s == pytest.approx(truth.max_speed_rad_s, rel=0.1)
+    assert fit.deadband_rad == pytest.approx(truth.deadband_rad, rel=0.1)
+    assert fit.droop_rad == pytest.approx(-DROOP_RAD, rel=0.1)
+    assert rms < 0.003
+
+
+def test_model_reproduces_speed_limit_lag_and_deadband() -> None:
+    fit = ServoFit(time_constant_s=0.05, max_speed_rad_s=2.0, deadband_rad=0.01, latency_s=0.02)
+    t_cmd = np.array([0.0, 1.0])
+    u = np.array([[1.0, 0.005], [1.0, 0.005]])
+    t_read = np.array([0.015, 0.12, 0.3, 0.9])
+    y = simulate(fit, t_cmd, u, t_read, np.zeros(2), np.zeros(2))
+    assert y[0, 0] == 0.0  # latency: nothing has happened yet at 15 ms
+    assert y[1, 0] == pytest.approx(2.0 * 0.1, abs=0.01)  # speed-limited ramp
+    assert y[3, 0] == pytest.approx(1.0, abs=0.011)  # settles within the dead band
+    assert np.all(y[:, 1] == 0.0)  # a 5 mrad command is inside the 10 mrad dead band
+
+
+def test_cli_writes_an_updated_spec_and_dr_centre(excitation_log: Path, tmp_path: Path) -> None:
+    out = tmp_path / "fitted.yaml"
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sim2real",
+            "sysid",
+            str(excitation_log),
+            "--out",
+            str(out),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    fitted = ArmSpec.from_yaml(out)
+    assert fitted.servo.time_constant_s == pytest.approx(summary["time_constant_s"], rel=1e-3)
+    assert fitted.joints == SPEC.joints  # only the servo model changes
+    from sim2real.randomization import load_preset
+
+    preset = load_preset(Path(summary["dr_preset"]))
+    db = preset["actuation"]["deadband_rad"]
+    assert db.low < fitted.servo.deadband_rad < db.high
+
+
+def test_bad_logs_are_named(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_log(tmp_path / "missing.npz", 3)
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, t_s=np.zeros(3))
+    with pytest.raises(ConfigError, match=r"lacks \['joints_rad', 't_cmd_s', 'sent_rad'\]"):
+        load_log(bad, 3)
