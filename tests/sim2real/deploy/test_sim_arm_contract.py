@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parents[2] / "hardware"))
-from arm_contract import ArmContract, ArmProbe  # noqa: E402
+from arm_contract import ArmContract, ArmProbe
 
-from hardware.spec import load_spec  # noqa: E402
-from sim2real.deploy.sim_arm import SimArm  # noqa: E402
+from hardware.spec import load_spec
+from sim2real.deploy.sim_arm import SimArm
 
 
 class SimProbe:
