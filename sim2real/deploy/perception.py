@@ -1,8 +1,8 @@
 """Where the deploy loop's end-effector and target estimates come from.
 
-``StereoPerception`` is the real pipeline: two frames → ArUco detection (sub-pixel corners) →
-undistort + triangulate the four corners → base frame through ``base_T_left`` → Kalman tracker
-per marker. The target is the target plate's centre; the tool is the wrist plate's centre plus
+``StereoPerception`` is the real pipeline, ``calibration.perception.StereoMarkerTracker`` per
+marker: two frames → ArUco detection (sub-pixel corners, ROI around the last detection) →
+undistort + triangulate the four corners → pose fit → base frame → Kalman tracker. The target is the target plate's centre; the tool is the wrist plate's centre plus
 the plate-to-tool offset turned by the base yaw joint reading: the parallel linkage keeps the
 gripper level, so yaw is the only rotation, and the servo reads yaw more precisely than a 3 cm
 marker seen at 40° can. ``OraclePerception`` is ground truth (the ``sim`` backend without cameras).
@@ -16,8 +16,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from calibration.errors import CalibrationError
-from calibration.kalman import Estimate, KalmanTracker, TrackerConfig
-from calibration.markers import ArucoMarkerDetector, Marker
+from calibration.kalman import TrackerConfig
+from calibration.perception import StereoMarkerTracker
 from calibration.triangulate import StereoRig
 from hardware.arm import ArmState
 from hardware.spec import ArmSpec
@@ -55,7 +55,8 @@ class StereoFrameSource:
 
 
 class StereoPerception:
-    """detect → triangulate → base frame → Kalman, for the target and the tool."""
+    """Two ``calibration.perception.StereoMarkerTracker`` (target plate, wrist plate) on the same
+    frame pair, plus the level-gripper offset from the wrist plate to the tool."""
 
     def __init__(
         self,
@@ -70,11 +71,10 @@ class StereoPerception:
         self.frames, self.rig, self.spec = frames, rig, spec
         self.layout = layout or MarkerLayout.for_spec(spec)
         self.base_T_left = np.asarray(base_T_left, dtype=float)
-        self.detector = ArucoMarkerDetector(self.layout.dictionary)
         cfg = tracker or TrackerConfig()
         # The target stands still for an episode: a quiet model that coasts through occlusion
         # (the gripper covers the plate exactly when it arrives).
-        target_cfg = replace(
+        self._target_cfg = replace(
             cfg,
             model="cv",
             manoeuvre_std=None,
@@ -84,78 +84,67 @@ class StereoPerception:
         )
         # The wrist plate moves fast and can turn away: coast at most two periods, then fall
         # back to forward kinematics corrected by the last camera-vs-FK offset.
-        ee_cfg = replace(cfg, max_coast_s=min(cfg.max_coast_s, 0.1))
-        self.trackers = {
-            self.layout.target_id: KalmanTracker(target_cfg),
-            self.layout.ee_id: KalmanTracker(ee_cfg),
-        }
-        self._fk_bias = np.zeros(3)
-        self._sizes = {
-            self.layout.target_id: self.layout.target_size_m,
-            self.layout.ee_id: self.layout.ee_size_m,
-        }
+        self._ee_cfg = replace(cfg, max_coast_s=min(cfg.max_coast_s, 0.1))
         self._offset = np.asarray(self.layout.ee_marker_p_tool_m, dtype=float)
         self._yaw_sign = spec.joints[0].sign * yaw_sign
         self.last_frames: tuple[np.ndarray, np.ndarray] | None = None
         self.detections = {"target": 0, "ee": 0, "periods": 0, "fk_fallback": 0}
+        self.reset()
+
+    def _tracker(self, marker_id: int, size_m: float, cfg: TrackerConfig) -> StereoMarkerTracker:
+        return StereoMarkerTracker(
+            self.rig,
+            base_T_cam=self.base_T_left,
+            marker_id=marker_id,
+            dictionary=self.layout.dictionary,
+            marker_length_m=size_m,
+            tracker=cfg,
+        )
 
     def reset(self) -> None:
-        for t in self.trackers.values():
-            t.reset()
+        lay = self.layout
+        self.target = self._tracker(lay.target_id, lay.target_size_m, self._target_cfg)
+        self.ee = self._tracker(lay.ee_id, lay.ee_size_m, self._ee_cfg)
         self._fk_bias = np.zeros(3)
 
-    def _triangulate_centre(self, left: Marker, right: Marker) -> np.ndarray:
-        """Base-frame centre of a marker from its four triangulated corners."""
-        corners_left = self.rig.triangulate(left.corners_px, right.corners_px)  # (4, 3)
-        corners_base = corners_left @ self.base_T_left[:3, :3].T + self.base_T_left[:3, 3]
-        return corners_base.mean(axis=0)
+    def _check_size(self, left_img: np.ndarray, right_img: np.ndarray) -> None:
+        """The calibration must be for the resolution the cameras deliver."""
+        for name, img, cam in (
+            ("left", left_img, self.rig.left),
+            ("right", right_img, self.rig.right),
+        ):
+            size = (img.shape[1], img.shape[0])
+            if size != cam.image_size:
+                raise CalibrationError(
+                    f"the {name} camera delivers {size[0]}x{size[1]} frames but the stereo "
+                    f"calibration is for {cam.image_size[0]}x{cam.image_size[1]}: "
+                    "recalibrate at this resolution or set the camera to it"
+                )
 
     def perceive(self, state: ArmState, timestamp_s: float) -> Percept:
         left_img, right_img, t = self.frames.read_pair()
-        if self.last_frames is None:  # first frame: the calibration must be for this camera
-            for name, img, cam in (
-                ("left", left_img, self.rig.left),
-                ("right", right_img, self.rig.right),
-            ):
-                size = (img.shape[1], img.shape[0])
-                if size != cam.image_size:
-                    raise CalibrationError(
-                        f"the {name} camera delivers {size[0]}x{size[1]} frames but the stereo "
-                        f"calibration is for {cam.image_size[0]}x{cam.image_size[1]}: "
-                        "recalibrate at this resolution or set the camera to it"
-                    )
+        if self.last_frames is None:
+            self._check_size(left_img, right_img)
         self.last_frames = (left_img, right_img)
         self.detections["periods"] += 1
-        found_l = {m.id: m for m in self.detector.detect(left_img)}
-        found_r = {m.id: m for m in self.detector.detect(right_img)}
-        estimates: dict[int, np.ndarray | None] = {}
-        for marker_id, tracker in self.trackers.items():
-            est: Estimate | None
-            if marker_id in found_l and marker_id in found_r:
-                centre = self._triangulate_centre(found_l[marker_id], found_r[marker_id])
-                est = tracker.update(centre, t)
-            else:
-                est = tracker.predict(t) if tracker.initialised else None
-            estimates[marker_id] = None if est is None or not est.valid else est.position_m
-        target = estimates[self.layout.target_id]
-        plate = estimates[self.layout.ee_id]
-        self.detections["target"] += int(
-            self.layout.target_id in found_l and self.layout.target_id in found_r
-        )
-        self.detections["ee"] += int(self.layout.ee_id in found_l and self.layout.ee_id in found_r)
+        target = self.target.observe(left_img, right_img, t)
+        plate = self.ee.observe(left_img, right_img, t)
+        seen_ee = self.ee.last_measurement is not None
+        self.detections["target"] += int(self.target.last_measurement is not None)
+        self.detections["ee"] += int(seen_ee)
         q = state.positions_rad[: self.spec.n_joints]
         fk = self.spec.forward_kinematics(q)
-        if plate is not None:
+        if plate.valid:
             yaw = self._yaw_sign * float(q[0])
             c, s = np.cos(yaw), np.sin(yaw)
             dx, dy, dz = self._offset
-            ee = plate + np.array([c * dx - s * dy, s * dx + c * dy, dz])
-            if self.layout.ee_id in found_l and self.layout.ee_id in found_r:
+            ee = plate.position_m + np.array([c * dx - s * dy, s * dx + c * dy, dz])
+            if seen_ee:
                 self._fk_bias += 0.2 * ((ee - fk) - self._fk_bias)
         else:
             ee = fk + self._fk_bias
             self.detections["fk_fallback"] += 1
-        return Percept(ee_m=ee, goal_m=target)
+        return Percept(ee_m=ee, goal_m=target.position_m if target.valid else None)
 
     def close(self) -> None:
         self.frames.close()
