@@ -16,6 +16,9 @@ from sim2real.errors import UnknownNameError
 
 ENTRY_POINT = "sim2real.envs.base:Arm3Env"
 GOAL_ENTRY_POINT = "sim2real.envs.base:Arm3GoalEnv"
+ROBOSUITE_ENTRY_POINT = "sim2real.envs.robosuite_env:RobosuiteEnv"
+KUKA_FAST_ENTRY_POINT = "sim2real.envs.kuka_grasp:KukaGraspFastEnv"
+KUKA_ROBOSUITE_ENTRY_POINT = "sim2real.envs.kuka_robosuite:KukaGraspEnv"
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,50 @@ ENV_TABLE: list[EnvEntry] = [
         doc="84x84 RGB from cam_left",
     ),
     EnvEntry("Sim2Real/Arm3Trace-v0", "trace", {"task": "trace"}, doc="follow a seam"),
+    # robosuite backend: string entry points, so robosuite is imported only when one is made.
+    EnvEntry(
+        "Sim2Real/RobosuiteLift-v0",
+        "robosuite-lift",
+        {"task": "lift"},
+        entry_point=ROBOSUITE_ENTRY_POINT,
+        doc="robosuite Lift, Panda (robot=...), OSC_POSE",
+    ),
+    EnvEntry(
+        "Sim2Real/RobosuiteReach-v0",
+        "robosuite-reach",
+        {"task": "reach"},
+        entry_point=ROBOSUITE_ENTRY_POINT,
+        doc="robosuite reach to 1 cm, Panda (robot=...), OSC_POSITION",
+    ),
+    # The seed project's Kuka grasping from 48x48 pixels (docs/kuka-grasp.md).
+    EnvEntry(
+        "Sim2Real/KukaGraspFast-v0",
+        "kuka-fast",
+        {"actions": "discrete"},
+        entry_point=KUKA_FAST_ENTRY_POINT,
+        doc="grasp from 48x48 RGB, 7 discrete actions, floating gripper (fast)",
+    ),
+    EnvEntry(
+        "Sim2Real/KukaGraspFastCont-v0",
+        "kuka-fast-cont",
+        {"actions": "continuous"},
+        entry_point=KUKA_FAST_ENTRY_POINT,
+        doc="grasp from 48x48 RGB, (dx, dy, dyaw) in [-1, 1], floating gripper (fast)",
+    ),
+    EnvEntry(
+        "Sim2Real/KukaGrasp-v0",
+        "kuka",
+        {"actions": "discrete"},
+        entry_point=KUKA_ROBOSUITE_ENTRY_POINT,
+        doc="grasp from 48x48 RGB, 7 discrete actions, robosuite IIWA",
+    ),
+    EnvEntry(
+        "Sim2Real/KukaGraspCont-v0",
+        "kuka-cont",
+        {"actions": "continuous"},
+        entry_point=KUKA_ROBOSUITE_ENTRY_POINT,
+        doc="grasp from 48x48 RGB, (dx, dy, dyaw) in [-1, 1], robosuite IIWA",
+    ),
 ]
 
 

@@ -45,13 +45,32 @@ def load_log(path: str | Path, n_joints: int) -> Trajectory:
     return Trajectory(data["t_s"], y, data["t_cmd_s"][ok], u[ok])
 
 
+def _residuals(fit: ServoFit, trajs: Sequence[Trajectory], mask: np.ndarray) -> np.ndarray:
+    return np.concatenate(
+        [
+            (
+                simulate(fit, tr.t_cmd_s, tr.commands_rad, tr.t_read_s, tr.readings_rad[0], mask)
+                - tr.readings_rad
+            ).ravel()
+            for tr in trajs
+        ]
+    )
+
+
 def _residual_rms(fit: ServoFit, trajs: Sequence[Trajectory], mask: np.ndarray) -> float:
-    sq, n = 0.0, 0
-    for tr in trajs:
-        sim = simulate(fit, tr.t_cmd_s, tr.commands_rad, tr.t_read_s, tr.readings_rad[0], mask)
-        sq += float(np.sum((sim - tr.readings_rad) ** 2))
-        n += sim.size
-    return math.sqrt(sq / max(n, 1))
+    r = _residuals(fit, trajs, mask)
+    return math.sqrt(float(np.mean(r * r)))
+
+
+HUBER_RAD = 0.01
+
+
+def _robust_cost(fit: ServoFit, trajs: Sequence[Trajectory], mask: np.ndarray) -> float:
+    """Huber loss: a period the host was descheduled in (its time stamp off by tens of ms)
+    costs linearly, so a few such periods cannot drag the lag or the latency."""
+    a = np.abs(_residuals(fit, trajs, mask))
+    quad = np.minimum(a, HUBER_RAD)
+    return float(np.mean(0.5 * quad * quad + HUBER_RAD * (a - quad)))
 
 
 def _initial_guess(trajs: Sequence[Trajectory]) -> ServoFit:
@@ -115,7 +134,7 @@ def fit_servo(
     mask = np.array([1.0 if j.axis.lstrip("-") == "y" else 0.0 for j in spec.joints])
 
     def objective(f: ServoFit) -> float:
-        return _residual_rms(f, trajs, mask)
+        return _robust_cost(f, trajs, mask)
 
     best = _nelder_mead(objective, _initial_guess(trajs), False, max_iter)
     if fit_droop:
@@ -123,4 +142,4 @@ def fit_servo(
             lambda d: objective(replace(best, droop_rad=d)), bounds=(-0.2, 0.2), method="bounded"
         ).x
         best = _nelder_mead(objective, replace(best, droop_rad=float(droop)), True, max_iter)
-    return best, objective(best)
+    return best, _residual_rms(best, trajs, mask)

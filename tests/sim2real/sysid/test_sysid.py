@@ -5,18 +5,16 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hardware.emulator.server import Emulator, EmulatorConfig
-from hardware.serial_arm import SerialArm
 from hardware.spec import ArmSpec, load_spec
 from sim2real.errors import ConfigError
 from sim2real.sysid.fit import fit_servo, load_log
 from sim2real.sysid.model import ServoFit, simulate
-from sim2real.sysid.record import record_excitation, save_log
 
 SPEC = load_spec()
 DROOP_RAD = 0.03
@@ -24,11 +22,30 @@ DROOP_RAD = 0.03
 
 @pytest.fixture(scope="module")
 def excitation_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A real excitation: SerialArm → pty → emulated Feetech bus with known servo dynamics."""
-    path = tmp_path_factory.mktemp("sysid") / "excite.npz"
-    config = EmulatorConfig(droop_rad=DROOP_RAD)
-    with Emulator(SPEC, "feetech", config) as emu, SerialArm(SPEC, emu.port, "feetech") as arm:
-        save_log(path, record_excitation(arm, rate_hz=100.0))
+    """A real excitation, as a user records one: ``sim2real sysid --record`` over a serial port
+    to an emulated Feetech bus with known servo dynamics, served by ``sim2real arm emulate`` in
+    its own process (its own interpreter, so its clock is not starved by ours)."""
+    tmp = tmp_path_factory.mktemp("sysid")
+    link, path = tmp / "arm", tmp / "excite.npz"
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "sim2real", "arm", "emulate", "--protocol", "feetech",
+         "--link", str(link), "--droop-rad", str(DROOP_RAD), "--duration-s", "120"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not link.exists():
+            assert emulator.poll() is None and time.monotonic() < deadline, "emulator did not start"
+            time.sleep(0.05)
+        res = subprocess.run(
+            [sys.executable, "-m", "sim2real", "sysid", "--record", str(path), "--backend",
+             "serial", "--port", str(link), "--protocol", "feetech"],
+            capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        assert res.returncode == 0, res.stderr
+    finally:
+        emulator.terminate()
+        emulator.wait(timeout=30)
     return path
 
 
