@@ -1,0 +1,44 @@
+"""``sim2real export RUN --format onnx|numpy --out FILE``: a torch-free policy for the robot."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="run directory")
+    parser.add_argument("--format", default="onnx", help="onnx (onnxruntime) or numpy (.npz)")
+    parser.add_argument("--out", help="output file (default RUN/policy.onnx or RUN/policy.npz)")
+    parser.add_argument(
+        "--check", type=int, default=1000, metavar="N", help="parity check on N observations"
+    )
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from sim2real.errors import ConfigError
+    from sim2real.export.exporter import SUFFIXES, export_policy
+    from sim2real.export.parity import parity_check
+
+    torch.set_num_threads(1)
+    if args.format not in SUFFIXES:
+        from sim2real.errors import UnknownNameError
+
+        raise UnknownNameError("export format", args.format, SUFFIXES)
+    if args.check < 0:
+        raise ConfigError(f"--check {args.check} must be >= 0")
+    out = args.out or f"{args.run.rstrip('/')}/policy{SUFFIXES[args.format]}"
+    path = export_policy(args.run, args.format, out)
+    summary: dict[str, object] = {"out": str(path), "format": args.format}
+    if args.check:
+        summary["max_abs_action_diff"] = parity_check(args.run, path, args.check)
+        summary["observations"] = args.check
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for k, v in summary.items():
+            print(f"{k:20s} {v}")
+    return 0

@@ -1,0 +1,162 @@
+"""The exported program as an ONNX graph (opset 17, IR 8), and an onnxruntime ``Policy``.
+
+The graph is built node by node from the same op list the numpy policy runs, so both exports
+compute the same function; normalisation runs in float64 as VecNormalize does. The metadata JSON
+rides in the model's ``metadata_props``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim2real.export.policy import Policy, PolicyError, PolicyMeta
+from sim2real.export.program import Op, validate_program
+from sim2real.train.atomic import atomic_write_bytes
+
+OPSET = 17
+IR_VERSION = 8  # onnxruntime >= 1.10 reads it: old builds on a Raspberry Pi too
+META_KEY = "sim2real_meta"
+INPUT, OUTPUT = "obs", "action"
+
+
+class _GraphBuilder:
+    def __init__(self) -> None:
+        self.nodes: list[Any] = []
+        self.initializers: list[Any] = []
+        self._n = 0
+
+    def name(self, hint: str) -> str:
+        self._n += 1
+        return f"{hint}_{self._n}"
+
+    def const(self, hint: str, value: np.ndarray) -> str:
+        from onnx import numpy_helper
+
+        n = self.name(hint)
+        self.initializers.append(numpy_helper.from_array(np.asarray(value), n))
+        return n
+
+    def node(self, op_type: str, inputs: list[str], hint: str, **attrs: Any) -> str:
+        from onnx import helper
+
+        out = self.name(hint)
+        self.nodes.append(helper.make_node(op_type, inputs, [out], name=out, **attrs))
+        return out
+
+
+def _normalize(g: _GraphBuilder, x: str, op: Op) -> str:
+    from onnx import TensorProto
+
+    xd = g.node("Cast", [x], "obs64", to=TensorProto.DOUBLE)
+    y = g.node("Sub", [xd, g.const("mean", op["mean"].astype(np.float64))], "centred")
+    y = g.node("Div", [y, g.const("std", op["std"].astype(np.float64))], "scaled")
+    if op.get("clip") is not None:
+        c = float(op["clip"])
+        lo, hi = g.const("lo", np.array(-c, np.float64)), g.const("hi", np.array(c, np.float64))
+        y = g.node("Clip", [y, lo, hi], "clipped")
+    return g.node("Cast", [y], "obs32", to=TensorProto.FLOAT)
+
+
+def _dense(g: _GraphBuilder, x: str, op: Op) -> str:
+    w = g.const("W", op["weight"].astype(np.float32))
+    b = g.const("b", op["bias"].astype(np.float32))
+    return g.node("Gemm", [x, w, b], "dense", transB=1)
+
+
+def _act(g: _GraphBuilder, x: str, op: Op) -> str:
+    fn = op["fn"]
+    if fn == "relu":
+        return g.node("Relu", [x], "relu")
+    if fn == "tanh":
+        return g.node("Tanh", [x], "tanh")
+    if fn == "elu":
+        return g.node("Elu", [x], "elu", alpha=float(op.get("alpha", 1.0)))
+    return g.node("LeakyRelu", [x], "lrelu", alpha=float(op.get("alpha", 0.01)))
+
+
+def _clip(g: _GraphBuilder, x: str, op: Op) -> str:
+    lo = g.const("low", op["low"].astype(np.float32))
+    hi = g.const("high", op["high"].astype(np.float32))
+    return g.node("Min", [g.node("Max", [x, lo], "max"), hi], "min")
+
+
+def _affine(g: _GraphBuilder, x: str, op: Op) -> str:
+    y = g.node("Mul", [x, g.const("scale", op["scale"].astype(np.float32))], "mul")
+    return g.node("Add", [y, g.const("offset", op["offset"].astype(np.float32))], "add")
+
+
+def _argmax_table(g: _GraphBuilder, x: str, op: Op) -> str:
+    idx = g.node("ArgMax", [x], "argmax", axis=1, keepdims=0)
+    return g.node("Gather", [g.const("table", op["table"].astype(np.float32)), idx], "gather")
+
+
+ONNX_OPS: dict[str, Callable[[_GraphBuilder, str, Op], str]] = {
+    "normalize": _normalize,
+    "dense": _dense,
+    "act": _act,
+    "clip": _clip,
+    "affine": _affine,
+    "argmax_table": _argmax_table,
+}
+
+
+def save_onnx(path: str | Path, program: list[Op], meta: PolicyMeta) -> Path:
+    import onnx
+    from onnx import TensorProto, helper
+
+    validate_program(program, meta.source)
+    g = _GraphBuilder()
+    x = INPUT
+    for op in program:
+        x = ONNX_OPS[op["op"]](g, x, op)
+    g.nodes.append(helper.make_node("Identity", [x], [OUTPUT], name=OUTPUT))
+    graph = helper.make_graph(
+        g.nodes,
+        "sim2real_policy",
+        [helper.make_tensor_value_info(INPUT, TensorProto.FLOAT, ["batch", meta.flat_obs_dim])],
+        [helper.make_tensor_value_info(OUTPUT, TensorProto.FLOAT, ["batch", meta.action_dim])],
+        initializer=g.initializers,
+    )
+    model = helper.make_model(
+        graph,
+        opset_imports=[helper.make_opsetid("", OPSET)],
+        producer_name="sim2real",
+        ir_version=IR_VERSION,
+    )
+    helper.set_model_props(model, {META_KEY: meta.to_json()})
+    onnx.checker.check_model(model)
+    return atomic_write_bytes(path, model.SerializeToString())
+
+
+class OnnxPolicy(Policy):
+    """Runs an exported ``.onnx`` policy with onnxruntime on the CPU."""
+
+    def __init__(self, path: str | Path) -> None:
+        import onnxruntime as ort
+
+        src = str(path)
+        try:
+            opts = ort.SessionOptions()
+            opts.intra_op_num_threads = 1
+            opts.inter_op_num_threads = 1
+            self._session = ort.InferenceSession(src, opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise PolicyError(f"policy {src!r} is not a loadable ONNX model ({msg})") from None
+        props = self._session.get_modelmeta().custom_metadata_map
+        if META_KEY not in props:
+            raise PolicyError(f"policy {src!r} is an ONNX model without sim2real metadata")
+        self.meta = PolicyMeta.from_json(props[META_KEY], source=src)
+
+    @classmethod
+    def load(cls, path: str | Path) -> OnnxPolicy:
+        return cls(path)
+
+    def _act(self, batch: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(batch, dtype=np.float32).reshape(len(batch), -1)
+        (out,) = self._session.run([OUTPUT], {INPUT: x})
+        return np.asarray(out, dtype=np.float32)

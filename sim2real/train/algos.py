@@ -1,0 +1,181 @@
+"""One registry of the stable-baselines3 algorithms, with the diagnostics ``compare`` plots.
+
+SB3 already logs most of what an engineer looks at when a run goes wrong (PPO's clip fraction and
+approx-KL, the actor and critic losses). The few it does not log — A2C's gradient norm, the
+Q-values of DQN, DDPG, TD3 and SAC, the actor's action statistics — are added here by thin
+subclasses that call the SB3 update unchanged and record afterwards. The extra replay-buffer sample
+restores numpy's global RNG, so an instrumented run takes the same steps as a plain one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
+
+from sim2real.errors import UnknownNameError
+
+DIAG_EVERY = 20  # train() calls between diagnostic samples (one extra forward pass each)
+
+
+def _sample_without_rng_side_effects(model: Any, batch_size: int) -> Any:
+    state = np.random.get_state()
+    try:
+        return model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
+    finally:
+        np.random.set_state(state)
+
+
+class _ActorCriticDiagnostics:
+    """Q-value and action statistics for DDPG/TD3/SAC, computed on a replay batch."""
+
+    _diag_calls = 0
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        super().train(gradient_steps, batch_size)  # type: ignore[misc]
+        self._diag_calls += 1
+        if self._diag_calls % DIAG_EVERY == 1:
+            self._record_diagnostics(batch_size)
+
+    def _policy_actions(self, obs: Any) -> th.Tensor:
+        return self.actor(obs)  # type: ignore[attr-defined]
+
+    def _record_diagnostics(self, batch_size: int) -> None:
+        data = _sample_without_rng_side_effects(self, batch_size)
+        with th.no_grad():
+            actions = self._policy_actions(data.observations)
+            q = self.critic(data.observations, actions)[0]  # type: ignore[attr-defined]
+        log = self.logger  # type: ignore[attr-defined]
+        log.record("train/q_mean", float(q.mean()))
+        log.record("train/action_mean", float(actions.mean()))
+        log.record("train/action_std", float(actions.std()))
+
+
+class DDPGDiag(_ActorCriticDiagnostics, DDPG):
+    pass
+
+
+class TD3Diag(_ActorCriticDiagnostics, TD3):
+    pass
+
+
+class SACDiag(_ActorCriticDiagnostics, SAC):
+    def _policy_actions(self, obs: Any) -> th.Tensor:
+        actions, _ = self.actor.action_log_prob(obs)
+        return actions
+
+
+class DQNDiag(DQN):
+    """Adds the mean and max of the greedy Q-value on a replay batch."""
+
+    _diag_calls = 0
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        super().train(gradient_steps, batch_size)
+        self._diag_calls += 1
+        if self._diag_calls % DIAG_EVERY == 1:
+            data = _sample_without_rng_side_effects(self, batch_size)
+            with th.no_grad():
+                q = self.q_net(data.observations).max(dim=1).values
+            self.logger.record("train/q_mean", float(q.mean()))
+            self.logger.record("train/q_max", float(q.max()))
+
+
+class A2CDiag(A2C):
+    """Adds the gradient norm *before* clipping (SB3 clips it and throws the norm away)."""
+
+    _grad_sq = 0.0
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        for p in self.policy.parameters():
+            p.register_post_accumulate_grad_hook(self._accumulate_grad)
+
+    def _accumulate_grad(self, p: th.Tensor) -> None:
+        if p.grad is not None:
+            self._grad_sq += float(p.grad.detach().pow(2).sum())
+
+    def train(self) -> None:
+        self._grad_sq = 0.0
+        super().train()
+        self.logger.record("train/grad_norm", math.sqrt(self._grad_sq))
+
+
+@dataclass(frozen=True)
+class AlgoSpec:
+    """How the trainer treats one algorithm."""
+
+    name: str
+    cls: Callable[..., Any]
+    off_policy: bool
+    discrete_actions: bool
+    action_noise: bool
+    diagnostics: tuple[str, ...]
+    doc: str
+
+
+_AC_DIAG = ("train/actor_loss", "train/critic_loss", "train/q_mean", "train/action_mean")
+ALGOS: dict[str, AlgoSpec] = {
+    "ddpg": AlgoSpec(
+        "ddpg", DDPGDiag, True, False, True, (*_AC_DIAG, "train/action_std"), "off-policy, det."
+    ),
+    "td3": AlgoSpec(
+        "td3", TD3Diag, True, False, True, (*_AC_DIAG, "train/action_std"), "twin critics, delay"
+    ),
+    "sac": AlgoSpec(
+        "sac",
+        SACDiag,
+        True,
+        False,
+        False,
+        (*_AC_DIAG, "train/action_std", "train/ent_coef"),
+        "max-entropy off-policy",
+    ),
+    "ppo": AlgoSpec(
+        "ppo",
+        PPO,
+        False,
+        False,
+        False,
+        ("train/clip_fraction", "train/entropy_loss", "train/value_loss", "train/approx_kl"),
+        "clipped on-policy",
+    ),
+    "a2c": AlgoSpec(
+        "a2c",
+        A2CDiag,
+        False,
+        False,
+        False,
+        ("train/value_loss", "train/entropy_loss", "train/grad_norm"),
+        "synchronous actor-critic",
+    ),
+    "dqn": AlgoSpec(
+        "dqn",
+        DQNDiag,
+        True,
+        True,
+        False,
+        ("rollout/exploration_rate", "train/q_mean", "train/loss"),
+        "discrete joint deltas",
+    ),
+}
+
+
+def get_algo(name: str) -> AlgoSpec:
+    try:
+        return ALGOS[name.lower()]
+    except KeyError:
+        raise UnknownNameError("algo", name, ALGOS) from None
+
+
+ACTIVATIONS: dict[str, type[th.nn.Module]] = {
+    "relu": th.nn.ReLU,
+    "tanh": th.nn.Tanh,
+    "elu": th.nn.ELU,
+    "leaky_relu": th.nn.LeakyReLU,
+}

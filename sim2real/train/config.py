@@ -1,0 +1,421 @@
+"""Training configuration: a hyperparameter preset per (algo, env), CLI overrides, validation.
+
+Presets are YAML files in ``presets/`` named ``<algo>_<env short name>.yaml`` (``ppo_reach``,
+``sac_pick_goal``), falling back to ``<algo>_<task>`` and then ``<algo>_default``. Every field of a
+preset can be overridden with ``--set KEY=VALUE`` (the value is parsed as YAML); a KEY that is not
+a top-level preset field is taken as an SB3 constructor argument (``--set learning_rate=3e-4`` is
+``--set hyperparams.learning_rate=3e-4``).
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sim2real.errors import ConfigError, UnknownNameError
+
+PRESET_DIR = Path(__file__).with_name("presets")
+VEC_ENVS: tuple[str, ...] = ("dummy", "subproc")
+EVAL_SEED_BASE = 1_000_000_000  # evaluation seeds start here; training seeds stay below
+# Keys of a preset file (besides comments); each maps to a TrainConfig field.
+PRESET_KEYS: tuple[str, ...] = (
+    "algo",
+    "steps",
+    "n_envs",
+    "vec_env",
+    "normalize",
+    "normalize_reward",
+    "policy",
+    "hyperparams",
+    "env_kwargs",
+    "action_noise",
+    "her",
+    "discrete_magnitudes",
+    "checkpoint_every",
+    "log_interval",
+    "save_replay",
+    "action_rate_penalty",
+    "max_wall_s",
+)
+# SB3 constructor arguments the trainer sets itself.
+MANAGED_HYPERPARAMS: frozenset[str] = frozenset(
+    {
+        "policy",
+        "env",
+        "seed",
+        "verbose",
+        "device",
+        "tensorboard_log",
+        "_init_setup_model",
+        "action_noise",
+        "replay_buffer_class",
+    }
+)
+MANAGED_ENV_KWARGS: frozenset[str] = frozenset({"dr", "spec", "render_mode", "task"})
+ACTION_NOISES: tuple[str, ...] = ("normal", "ornstein_uhlenbeck")
+SCHEDULE_PREFIX = "lin_"  # "lin_1e-3": linear decay from 1e-3 to 0 over the run
+SCHEDULABLE: tuple[str, ...] = ("learning_rate", "clip_range")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that decides a training run; written to ``config.json`` in the run dir."""
+
+    env_id: str
+    algo: str
+    run_dir: str
+    dr: str = "default"
+    steps: int = 100_000
+    seed: int = 0
+    n_envs: int = 1
+    vec_env: str = "dummy"
+    her: bool = False
+    normalize: bool = True
+    normalize_reward: bool = False
+    policy: str | None = None
+    hyperparams: Mapping[str, Any] = field(default_factory=dict)
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    her_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    action_noise: Mapping[str, Any] | None = None
+    discrete_magnitudes: tuple[float, ...] = (1.0, 0.2)
+    checkpoint_every: int = 0  # env steps between checkpoints; 0 = five per run
+    log_interval: int = 1
+    save_replay: bool = True
+    action_rate_penalty: float = 0.0  # training-only reward shaping, see wrappers.py
+    max_wall_s: float = 0.0  # stop (and save) after this much wall time; 0 = no limit
+    spec_path: str | None = None
+    preset: str = ""
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        import sim2real.envs as envs
+        from sim2real.randomization import load_preset
+        from sim2real.train.algos import get_algo
+
+        object.__setattr__(self, "env_id", envs.resolve_env_id(self.env_id))
+        algo = get_algo(self.algo)
+        object.__setattr__(self, "algo", algo.name)
+        load_preset(self.dr)  # unknown names / bad files fail here, before anything is written
+        for name in ("steps", "n_envs", "log_interval"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+        if not isinstance(self.checkpoint_every, int) or self.checkpoint_every < 0:
+            raise ConfigError(
+                f"checkpoint_every must be an integer >= 0, got {self.checkpoint_every!r}"
+            )
+        if not isinstance(self.seed, int) or not 0 <= self.seed < EVAL_SEED_BASE // 2:
+            raise ConfigError(
+                f"seed must be an integer in [0, {EVAL_SEED_BASE // 2}), got {self.seed!r}"
+            )
+        if self.vec_env not in VEC_ENVS:
+            raise UnknownNameError("vec_env", str(self.vec_env), VEC_ENVS)
+        if self.her:
+            if not algo.off_policy:
+                off = sorted(n for n, a in _algos().items() if a.off_policy)
+                raise ConfigError(
+                    f"--her needs an off-policy algo ({', '.join(off)}); got {algo.name!r}"
+                )
+            if not is_goal_env(self.env_id):
+                goal = [e.id for e in envs.ENV_TABLE if e.kwargs.get("obs_mode") == "goal"]
+                raise ConfigError(
+                    f"--her needs a goal-conditioned env ({', '.join(goal)}); got {self.env_id!r}"
+                )
+        if self.action_noise is not None:
+            if not isinstance(self.action_noise, Mapping):
+                raise ConfigError(
+                    f"action_noise must be a mapping like {{type: normal, sigma: 0.1}}, "
+                    f"got {self.action_noise!r}"
+                )
+            kind = self.action_noise.get("type")
+            if kind not in ACTION_NOISES:
+                raise UnknownNameError("action_noise type", str(kind), ACTION_NOISES)
+            if not algo.action_noise:
+                raise ConfigError(f"action_noise is not used by {algo.name!r}; remove it")
+        if (
+            not isinstance(self.action_rate_penalty, int | float)
+            or not self.action_rate_penalty >= 0
+        ):
+            raise ConfigError(
+                f"action_rate_penalty must be a number >= 0, got {self.action_rate_penalty!r}"
+            )
+        if not isinstance(self.max_wall_s, int | float) or not self.max_wall_s >= 0:
+            raise ConfigError(f"max_wall_s must be a number >= 0, got {self.max_wall_s!r}")
+        if self.action_rate_penalty and self.her:
+            raise ConfigError(
+                "action_rate_penalty cannot be used with --her (HER recomputes rewards)"
+            )
+        _check_hyperparams(algo.name, self.hyperparams)
+        _check_env_kwargs(self.env_kwargs)
+        object.__setattr__(
+            self, "discrete_magnitudes", tuple(float(m) for m in self.discrete_magnitudes)
+        )
+
+    @property
+    def checkpoint_interval(self) -> int:
+        return self.checkpoint_every or max(self.steps // 5, 1)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "env_id": self.env_id,
+            "algo": self.algo,
+            "run_dir": self.run_dir,
+            "dr": self.dr,
+            "steps": self.steps,
+            "seed": self.seed,
+            "n_envs": self.n_envs,
+            "vec_env": self.vec_env,
+            "her": self.her,
+            "normalize": self.normalize,
+            "normalize_reward": self.normalize_reward,
+            "policy": self.policy,
+            "hyperparams": copy.deepcopy(dict(self.hyperparams)),
+            "env_kwargs": dict(self.env_kwargs),
+            "her_kwargs": dict(self.her_kwargs),
+            "action_noise": None if self.action_noise is None else dict(self.action_noise),
+            "discrete_magnitudes": list(self.discrete_magnitudes),
+            "checkpoint_every": self.checkpoint_every,
+            "log_interval": self.log_interval,
+            "save_replay": self.save_replay,
+            "action_rate_penalty": self.action_rate_penalty,
+            "max_wall_s": self.max_wall_s,
+            "spec_path": self.spec_path,
+            "preset": self.preset,
+            "progress": self.progress,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TrainConfig:
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"train config: unknown key(s) {unknown}; valid: {sorted(known)}")
+        kw = dict(data)
+        if "discrete_magnitudes" in kw:
+            kw["discrete_magnitudes"] = tuple(kw["discrete_magnitudes"])
+        return cls(**kw)
+
+
+def _algos() -> Mapping[str, Any]:
+    from sim2real.train.algos import ALGOS
+
+    return ALGOS
+
+
+def is_goal_env(env_id: str) -> bool:
+    import sim2real.envs as envs
+
+    entry = next(e for e in envs.ENV_TABLE if e.id == envs.resolve_env_id(env_id))
+    return entry.kwargs.get("obs_mode") == "goal"
+
+
+def _check_hyperparams(algo: str, hp: Mapping[str, Any]) -> None:
+    cls = _algos()[algo].cls
+    params = set(inspect.signature(cls.__init__).parameters) - {"self", "kwargs"}
+    allowed = params - MANAGED_HYPERPARAMS
+    unknown = sorted(set(hp) - allowed)
+    if unknown:
+        raise ConfigError(
+            f"unknown {algo} hyperparameter(s) {unknown}; valid: {', '.join(sorted(allowed))}"
+        )
+    for key in SCHEDULABLE:
+        value = hp.get(key)
+        if isinstance(value, str):
+            try:
+                if not value.startswith(SCHEDULE_PREFIX):
+                    raise ValueError
+                float(value.removeprefix(SCHEDULE_PREFIX))
+            except ValueError:
+                raise ConfigError(
+                    f"{algo} {key} {value!r}: give a number or {SCHEDULE_PREFIX}<start>, "
+                    f"e.g. {SCHEDULE_PREFIX}1e-3"
+                ) from None
+    act = (hp.get("policy_kwargs") or {}).get("activation_fn")
+    if act is not None:
+        from sim2real.train.algos import ACTIVATIONS
+
+        if act not in ACTIVATIONS:
+            raise UnknownNameError("activation_fn", str(act), ACTIVATIONS)
+
+
+def _check_env_kwargs(kw: Mapping[str, Any]) -> None:
+    from sim2real.envs.base import Arm3Env
+
+    params = set(inspect.signature(Arm3Env.__init__).parameters) - {"self"}
+    allowed = params - MANAGED_ENV_KWARGS
+    unknown = sorted(set(kw) - allowed)
+    if unknown:
+        raise ConfigError(f"unknown env_kwargs {unknown}; valid: {', '.join(sorted(allowed))}")
+
+
+# ---- presets ---------------------------------------------------------------------------------
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
+
+
+def preset_candidates(algo: str, env_id: str) -> list[str]:
+    """Names tried in order: the exact env, the env's task (only for variants that share its
+    observation and reward: a goal, pixel or sparse variant needs its own), the algorithm's
+    default."""
+    import sim2real.envs as envs
+
+    entry = next(e for e in envs.ENV_TABLE if e.id == envs.resolve_env_id(env_id))
+    short = entry.short.replace("-", "_")
+    task = str(entry.kwargs.get("task", short))
+    names = [f"{algo}_{short}"]
+    if set(entry.kwargs) <= {"task"}:
+        names.append(f"{algo}_{task}")
+    names.append(f"{algo}_default")
+    return list(dict.fromkeys(names))
+
+
+def find_preset(algo: str, env_id: str, preset: str | None = None) -> Path:
+    if preset:
+        path = Path(preset)
+        if preset.endswith((".yaml", ".yml")) or path.is_file():
+            if not path.is_file():
+                raise ConfigError(f"preset file {preset!r} does not exist")
+            return path
+        named = PRESET_DIR / f"{preset}.yaml"
+        if not named.is_file():
+            raise UnknownNameError("preset", preset, preset_names())
+        return named
+    for name in preset_candidates(algo, env_id):
+        path = PRESET_DIR / f"{name}.yaml"
+        if path.is_file():
+            return path
+    raise ConfigError(f"no preset for algo {algo!r} and env {env_id!r}")  # pragma: no cover
+
+
+def read_preset(path: Path) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(
+            f"preset {str(path)!r} is not valid YAML: {exc}".splitlines()[0]
+        ) from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"preset {str(path)!r} must be a mapping")
+    unknown = sorted(set(data) - set(PRESET_KEYS))
+    if unknown:
+        raise ConfigError(
+            f"preset {str(path)!r}: unknown key(s) {unknown}; valid: {list(PRESET_KEYS)}"
+        )
+    return data
+
+
+def apply_overrides(preset: Mapping[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings into a copy of ``preset`` (dotted keys reach nested mappings)."""
+    out = copy.deepcopy(dict(preset))
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"override {item!r} must look like KEY=VALUE")
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            raise ConfigError(f"override {item!r}: value is not valid YAML") from None
+        parts = key.split(".")
+        if parts[0] not in PRESET_KEYS:
+            parts = ["hyperparams", *parts]
+        node = out
+        for p in parts[:-1]:
+            child = node.get(p)
+            if child is None:
+                child = node[p] = {}
+            if not isinstance(child, dict):
+                raise ConfigError(f"override {item!r}: {p!r} is not a mapping")
+            node = child
+        node[parts[-1]] = value
+    return out
+
+
+def resolve_config(
+    env: str,
+    algo: str,
+    run_dir: str | Path,
+    *,
+    dr: str = "default",
+    seed: int = 0,
+    steps: int | None = None,
+    n_envs: int | None = None,
+    vec_env: str | None = None,
+    her: bool = False,
+    preset: str | None = None,
+    overrides: Sequence[str] = (),
+    spec_path: str | None = None,
+    progress: bool = True,
+    max_wall_s: float | None = None,
+) -> TrainConfig:
+    """Preset file → ``--set`` overrides → explicit flags, into one validated ``TrainConfig``."""
+    import sim2real.envs as envs
+    from sim2real.train.algos import get_algo
+
+    env_id = envs.resolve_env_id(env)
+    algo_name = get_algo(algo).name
+    path = find_preset(algo_name, env_id, preset)
+    data = apply_overrides(read_preset(path), overrides)
+    if data.get("algo", algo_name) != algo_name:
+        raise ConfigError(f"preset {path.stem!r} is for algo {data['algo']!r}, not {algo_name!r}")
+    flags = {"steps": steps, "n_envs": n_envs, "vec_env": vec_env}
+    set_keys = {o.partition("=")[0].strip() for o in overrides}
+    for name, value in flags.items():
+        if value is None:
+            continue
+        if name in set_keys and data[name] != value:
+            raise ConfigError(
+                f"conflicting flags: --{name.replace('_', '-')} {value} and --set {name}={data[name]}"
+            )
+        data[name] = value
+    her_kwargs = data.get("her") or {}
+    if not isinstance(her_kwargs, dict):
+        raise ConfigError(f"preset {path.stem!r}: 'her' must be a mapping of HER options")
+    return TrainConfig(
+        env_id=env_id,
+        algo=algo_name,
+        run_dir=str(run_dir),
+        dr=dr,
+        steps=data.get("steps", 100_000),
+        seed=seed,
+        n_envs=data.get("n_envs", 1),
+        vec_env=str(data.get("vec_env", "dummy")),
+        her=her,
+        normalize=_as_bool("normalize", data.get("normalize", True)),
+        normalize_reward=_as_bool("normalize_reward", data.get("normalize_reward", False)),
+        policy=data.get("policy"),
+        hyperparams=dict(data.get("hyperparams") or {}),
+        env_kwargs=dict(data.get("env_kwargs") or {}),
+        her_kwargs=dict(her_kwargs),
+        action_noise=data.get("action_noise"),
+        discrete_magnitudes=_as_floats(
+            "discrete_magnitudes", data.get("discrete_magnitudes", (1.0, 0.2))
+        ),
+        checkpoint_every=data.get("checkpoint_every", 0),
+        log_interval=data.get("log_interval", 1),
+        save_replay=_as_bool("save_replay", data.get("save_replay", True)),
+        action_rate_penalty=data.get("action_rate_penalty", 0.0),
+        max_wall_s=data.get("max_wall_s", 0.0) if max_wall_s is None else max_wall_s,
+        spec_path=spec_path,
+        preset=path.stem if path.parent == PRESET_DIR else str(path),
+        progress=progress,
+    )
+
+
+def _as_bool(name: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{name} must be true or false, got {value!r}")
+    return value
+
+
+def _as_floats(name: str, value: Any) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be a list of numbers, got {value!r}") from None

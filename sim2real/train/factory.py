@@ -1,0 +1,85 @@
+"""Building the (vectorised) environments a run trains on, the same way for train and resume.
+
+Each worker env is ``gym.make(id, dr=DRConfig, spec=ArmSpec, **env_kwargs)``, then the discrete
+action wrapper when the algorithm needs one, then SB3's ``Monitor`` (one CSV per env and training
+segment, with the final ``is_success`` and ``distance_m`` of every episode).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
+
+MONITOR_KEYWORDS: tuple[str, ...] = ("is_success", "distance_m")
+VEC_ENV_CLASSES: dict[str, Callable[[list[Callable[[], gym.Env[Any, Any]]]], VecEnv]] = {
+    "dummy": DummyVecEnv,
+    "subproc": SubprocVecEnv,
+}
+
+
+def make_env(
+    env_id: str,
+    env_kwargs: Mapping[str, Any],
+    action_table: np.ndarray | None = None,
+    monitor_path: str | None = None,
+    action_rate_penalty: float = 0.0,
+) -> gym.Env[Any, Any]:
+    """One env as training sees it (module-level, so subprocess workers can pickle it)."""
+    import sim2real.envs as envs
+
+    env: gym.Env[Any, Any] = envs.make(env_id, **dict(env_kwargs))
+    if action_rate_penalty > 0:
+        from sim2real.train.wrappers import ActionRatePenalty
+
+        env = ActionRatePenalty(env, action_rate_penalty)
+    if action_table is not None:
+        from sim2real.train.wrappers import DiscreteDeltaActions
+
+        env = DiscreteDeltaActions(env, action_table)
+    if monitor_path is not None:
+        env = Monitor(env, monitor_path, info_keywords=MONITOR_KEYWORDS)
+    return env
+
+
+def build_vec_env(
+    env_id: str,
+    env_kwargs: Mapping[str, Any],
+    seeds: Sequence[int],
+    vec_env: str = "dummy",
+    action_table: np.ndarray | None = None,
+    monitor_prefix: str | None = None,
+    action_rate_penalty: float = 0.0,
+) -> VecEnv:
+    """``len(seeds)`` envs; env i resets first with ``seeds[i]`` (seeds must be consecutive)."""
+    fns: list[Callable[[], gym.Env[Any, Any]]] = [
+        functools.partial(
+            make_env,
+            env_id,
+            dict(env_kwargs),
+            action_table,
+            None if monitor_prefix is None else f"{monitor_prefix}.{i}",
+            action_rate_penalty,
+        )
+        for i in range(len(seeds))
+    ]
+    if list(seeds) != list(range(seeds[0], seeds[0] + len(seeds))):
+        raise ValueError(f"seeds must be consecutive, got {list(seeds)}")
+    venv = VEC_ENV_CLASSES[vec_env if len(seeds) > 1 else "dummy"](fns)
+    venv.seed(int(seeds[0]))  # SB3 seeds env i with seeds[0] + i at the next reset
+    return venv
+
+
+def policy_for(observation_space: gym.spaces.Space[Any]) -> str:
+    """SB3 policy name for an observation space: dict → MultiInput, image → CNN, else MLP."""
+    if isinstance(observation_space, gym.spaces.Dict):
+        return "MultiInputPolicy"
+    if is_image_space(observation_space):
+        return "CnnPolicy"
+    return "MlpPolicy"

@@ -1,0 +1,257 @@
+"""The run directory: one folder holds everything a training run leaves for later.
+
+Layout (every file written atomically)::
+
+    RUN/
+      config.json          resolved config: env id, DR preset and ranges, spec + fingerprint,
+                           seed, training seeds, hyperparameters, obs layout, versions
+      status.json          steps done, finished flag, wall time, latest checkpoint
+      model.zip            final SB3 model (written when training finishes)
+      vecnormalize.pkl     observation-normalisation statistics (when used)
+      checkpoints/         step_<N>.zip (+ .vecnormalize.pkl, + .replay.pkl for the newest)
+      monitor/             SB3 Monitor CSVs, one per env and training segment
+      episodes.csv         every finished training episode: timestep, return, length, success
+      metrics.jsonl        every logger dump (losses, entropies, Q-values ...) with its timestep
+      tb/                  TensorBoard event files
+
+Only the standard library is imported here: the deploy loop reads run configs on the robot side.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sim2real.errors import RunDirError
+from sim2real.train.atomic import atomic_write_json
+
+FORMAT_VERSION = 1
+CONFIG_FILE = "config.json"
+STATUS_FILE = "status.json"
+MODEL_FILE = "model.zip"
+VECNORM_FILE = "vecnormalize.pkl"
+CHECKPOINT_DIR = "checkpoints"
+MONITOR_DIR = "monitor"
+TB_DIR = "tb"
+EPISODES_FILE = "episodes.csv"
+METRICS_FILE = "metrics.jsonl"
+REQUIRED_KEYS: tuple[str, ...] = (
+    "format",
+    "env_id",
+    "algo",
+    "dr",
+    "seed",
+    "steps",
+    "spec",
+    "spec_fingerprint",
+    "training_seeds",
+    "obs_layout",
+)
+_CKPT_RE = re.compile(r"^step_(\d+)\.zip$")
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    steps: int
+    model: Path
+    vecnormalize: Path | None
+    replay: Path | None
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """The parts of ``config.json`` that evaluation, export and deployment rely on."""
+
+    path: Path
+    env_id: str
+    algo: str
+    dr: str
+    seed: int
+    steps: int
+    spec_fingerprint: str
+    spec: dict[str, Any]
+    training_seeds: tuple[int, ...]
+    obs_layout: tuple[dict[str, Any], ...]
+    raw: dict[str, Any] = field(repr=False)
+
+    @property
+    def env_kwargs(self) -> dict[str, Any]:
+        return dict(self.raw.get("env_kwargs", {}))
+
+    @property
+    def action_table(self) -> list[list[float]] | None:
+        """Rows of joint-delta actions when the policy is discrete (DQN), else None."""
+        table = self.raw.get("action_table")
+        return None if table is None else [list(map(float, row)) for row in table]
+
+    def check_spec(self, fingerprint: str) -> None:
+        """Refuse to drive an arm whose spec differs from the one the policy was trained on."""
+        if fingerprint != self.spec_fingerprint:
+            raise RunDirError(
+                f"run {self.path} was trained for arm spec {self.spec.get('name', '?')!r} "
+                f"(fingerprint {self.spec_fingerprint}); this arm's spec has fingerprint "
+                f"{fingerprint}"
+            )
+
+
+class RunDir:
+    """Paths and atomic reads/writes of one run directory."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"RunDir({str(self.path)!r})"
+
+    # ---- paths ------------------------------------------------------------------------------
+    @property
+    def config_path(self) -> Path:
+        return self.path / CONFIG_FILE
+
+    @property
+    def status_path(self) -> Path:
+        return self.path / STATUS_FILE
+
+    @property
+    def model_path(self) -> Path:
+        return self.path / MODEL_FILE
+
+    @property
+    def vecnormalize_path(self) -> Path:
+        return self.path / VECNORM_FILE
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.path / CHECKPOINT_DIR
+
+    @property
+    def monitor_dir(self) -> Path:
+        return self.path / MONITOR_DIR
+
+    @property
+    def tb_dir(self) -> Path:
+        return self.path / TB_DIR
+
+    @property
+    def episodes_path(self) -> Path:
+        return self.path / EPISODES_FILE
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.path / METRICS_FILE
+
+    def checkpoint_paths(self, steps: int) -> Checkpoint:
+        stem = f"step_{steps:010d}"
+        d = self.checkpoint_dir
+        return Checkpoint(
+            steps, d / f"{stem}.zip", d / f"{stem}.vecnormalize.pkl", d / f"{stem}.replay.pkl"
+        )
+
+    # ---- state ------------------------------------------------------------------------------
+    def has_config(self) -> bool:
+        return self.config_path.is_file()
+
+    def is_empty(self) -> bool:
+        return not self.path.exists() or not any(self.path.iterdir())
+
+    def write_config(self, config: dict[str, Any]) -> None:
+        atomic_write_json(self.config_path, config)
+
+    def read_config(self) -> dict[str, Any]:
+        """The resolved config; a missing or corrupt file is a one-line ``RunDirError``."""
+        if not self.path.is_dir():
+            raise RunDirError(f"run dir {str(self.path)!r} does not exist")
+        if not self.config_path.is_file():
+            raise RunDirError(f"run dir {str(self.path)!r} has no {CONFIG_FILE}: not a run dir")
+        try:
+            data = json.loads(self.config_path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            msg = str(exc).splitlines()[0]
+            raise RunDirError(
+                f"run dir {str(self.path)!r}: corrupt {CONFIG_FILE} ({msg})"
+            ) from None
+        if not isinstance(data, dict):
+            raise RunDirError(f"run dir {str(self.path)!r}: {CONFIG_FILE} is not a mapping")
+        missing = [k for k in REQUIRED_KEYS if k not in data]
+        if missing:
+            raise RunDirError(f"run dir {str(self.path)!r}: {CONFIG_FILE} lacks {missing}")
+        if data["format"] != FORMAT_VERSION:
+            raise RunDirError(
+                f"run dir {str(self.path)!r}: format {data['format']!r} is not {FORMAT_VERSION}"
+            )
+        return data
+
+    def info(self) -> RunInfo:
+        c = self.read_config()
+        try:
+            return RunInfo(
+                path=self.path,
+                env_id=str(c["env_id"]),
+                algo=str(c["algo"]),
+                dr=str(c["dr"]),
+                seed=int(c["seed"]),
+                steps=int(c["steps"]),
+                spec_fingerprint=str(c["spec_fingerprint"]),
+                spec=dict(c["spec"]),
+                training_seeds=tuple(int(s) for s in c["training_seeds"]),
+                obs_layout=tuple(dict(f) for f in c["obs_layout"]),
+                raw=c,
+            )
+        except (TypeError, ValueError) as exc:
+            raise RunDirError(f"run dir {str(self.path)!r}: bad {CONFIG_FILE} ({exc})") from None
+
+    def read_status(self) -> dict[str, Any]:
+        if not self.status_path.is_file():
+            return {"steps_done": 0, "finished": False, "wall_s": 0.0, "segments": 0}
+        try:
+            data = json.loads(self.status_path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            msg = str(exc).splitlines()[0]
+            raise RunDirError(
+                f"run dir {str(self.path)!r}: corrupt {STATUS_FILE} ({msg})"
+            ) from None
+        if not isinstance(data, dict):
+            raise RunDirError(f"run dir {str(self.path)!r}: {STATUS_FILE} is not a mapping")
+        return data
+
+    def write_status(self, status: dict[str, Any]) -> None:
+        atomic_write_json(self.status_path, status)
+
+    def checkpoints(self) -> list[Checkpoint]:
+        """Complete checkpoints (model file present), oldest first."""
+        out: list[Checkpoint] = []
+        if not self.checkpoint_dir.is_dir():
+            return out
+        for p in self.checkpoint_dir.iterdir():
+            m = _CKPT_RE.match(p.name)
+            if m:
+                c = self.checkpoint_paths(int(m.group(1)))
+                out.append(
+                    Checkpoint(
+                        c.steps,
+                        c.model,
+                        c.vecnormalize if c.vecnormalize and c.vecnormalize.is_file() else None,
+                        c.replay if c.replay and c.replay.is_file() else None,
+                    )
+                )
+        return sorted(out, key=lambda c: c.steps)
+
+    def latest_checkpoint(self) -> Checkpoint | None:
+        ckpts = self.checkpoints()
+        return ckpts[-1] if ckpts else None
+
+    def policy_files(self) -> tuple[Path, Path | None]:
+        """(model, vecnormalize-or-None) of the final model, else of the newest checkpoint."""
+        self.read_config()
+        if self.model_path.is_file():
+            vn = self.vecnormalize_path
+            return self.model_path, vn if vn.is_file() else None
+        ckpt = self.latest_checkpoint()
+        if ckpt is None:
+            raise RunDirError(
+                f"run dir {str(self.path)!r} has neither {MODEL_FILE} nor a checkpoint"
+            )
+        return ckpt.model, ckpt.vecnormalize

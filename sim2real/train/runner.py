@@ -1,0 +1,426 @@
+"""``train`` and ``resume``: a run directory in, a trained SB3 model (and its records) out.
+
+A run is one or more *segments*: the first trains from scratch, each ``resume`` continues from the
+newest checkpoint with fresh env seeds (recorded, so evaluation can prove its seeds are held out).
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as dt
+import importlib.metadata
+import io
+import pickle
+import platform
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, cast
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import CallbackList
+from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from hardware.spec import ArmSpec, load_spec
+from sim2real.errors import ConfigError, RunDirError
+from sim2real.randomization import DRConfig, load_preset
+from sim2real.train.algos import ACTIVATIONS, AlgoSpec, get_algo
+from sim2real.train.atomic import atomic_write
+from sim2real.train.callbacks import (
+    EpisodeLog,
+    JsonlMetrics,
+    ProgressBar,
+    RunDirCheckpoint,
+    WallClockLimit,
+    save_checkpoint,
+)
+from sim2real.train.config import EVAL_SEED_BASE, SCHEDULABLE, SCHEDULE_PREFIX, TrainConfig
+from sim2real.train.factory import build_vec_env, policy_for
+from sim2real.train.rundir import FORMAT_VERSION, Checkpoint, RunDir
+from sim2real.train.wrappers import delta_action_table
+
+VERSION_PACKAGES: tuple[str, ...] = (
+    "sim2real",
+    "numpy",
+    "torch",
+    "stable-baselines3",
+    "gymnasium",
+    "mujoco",
+)
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    run_dir: Path
+    steps_done: int
+    wall_s: float
+    steps_per_s: float  # this segment's env steps per wall second, updates included
+    train_success_rate: float | None  # SB3's window of recent training episodes
+    stopped_by_wall_limit: bool = False
+
+
+def versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for name in VERSION_PACKAGES:
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:  # pragma: no cover
+            out[name] = "not installed"
+    return out
+
+
+def _segment_seeds(seed: int, n_envs: int, segment: int) -> list[int]:
+    """Consecutive reset seeds of segment ``segment``; all stay below the evaluation range."""
+    base = seed + segment * 1_000_003
+    seeds = list(range(base, base + n_envs))
+    if seeds[-1] >= EVAL_SEED_BASE:
+        raise ConfigError(f"seed {seed} with {segment} resumes runs into the evaluation seeds")
+    return seeds
+
+
+def _action_table(cfg: TrainConfig, algo: AlgoSpec, spec: ArmSpec) -> np.ndarray | None:
+    if not algo.discrete_actions:
+        return None
+    from sim2real.envs import ENV_TABLE, TASKS
+
+    entry = next(e for e in ENV_TABLE if e.id == cfg.env_id)
+    gripper = TASKS[str(entry.kwargs.get("task", "reach"))].uses_gripper
+    return delta_action_table(spec.n_joints, cfg.discrete_magnitudes, gripper=gripper)
+
+
+def _env_kwargs(cfg: TrainConfig, dr: DRConfig, spec: ArmSpec) -> dict[str, Any]:
+    return {**dict(cfg.env_kwargs), "dr": dr, "spec": spec}
+
+
+def _obs_description(env: gym.Env[Any, Any]) -> dict[str, Any]:
+    """The observation contract the deploy loop must reproduce."""
+    base = env.unwrapped
+    layout = [
+        {"name": f.name, "start": f.start, "stop": f.stop, "unit": f.unit, "doc": f.doc}
+        for f in base.builder.layout()  # type: ignore[attr-defined]
+    ]
+    space = env.observation_space
+    keys = sizes = None
+    shape = list(space.shape or ())
+    if isinstance(space, gym.spaces.Dict):  # policies see the keys flattened in sorted order
+        keys = list(space.spaces)
+        sizes = [int(np.prod(space.spaces[k].shape or ())) for k in keys]
+        shape = [sum(sizes)]
+    return {
+        "obs_layout": layout,
+        "obs_mode": base.obs_mode,  # type: ignore[attr-defined]
+        "obs_shape": shape,
+        "obs_keys": keys,
+        "obs_key_sizes": sizes,
+        "observation_space": str(space),
+        "action_space": str(base.action_space),
+        "action_dim": int(base.action_space.shape[0]),  # type: ignore[index]
+        "control_hz": 1.0 / base.control_dt_s,  # type: ignore[attr-defined]
+        "max_delta_rad": float(base.decoder.max_delta_rad),  # type: ignore[attr-defined]
+    }
+
+
+class LinearSchedule:
+    """``lin_<v>`` in a preset: ``v`` at the start, decaying linearly to 0 at the last step
+    (SB3 passes the remaining progress, 1 → 0). A class, not a lambda, so checkpoints pickle it."""
+
+    def __init__(self, start: float) -> None:
+        self.start = start
+
+    def __call__(self, progress_remaining: float) -> float:
+        return progress_remaining * self.start
+
+
+def _schedule(value: Any) -> Any:
+    if isinstance(value, str) and value.startswith(SCHEDULE_PREFIX):
+        return LinearSchedule(float(value.removeprefix(SCHEDULE_PREFIX)))
+    return value
+
+
+def _hyperparams(cfg: TrainConfig, algo: AlgoSpec, n_actions: int) -> dict[str, Any]:
+    hp = copy.deepcopy(dict(cfg.hyperparams))
+    for key in SCHEDULABLE:
+        if key in hp:
+            hp[key] = _schedule(hp[key])
+    pk = dict(hp.get("policy_kwargs") or {})
+    if "activation_fn" in pk:
+        pk["activation_fn"] = ACTIVATIONS[pk["activation_fn"]]
+    if pk:
+        hp["policy_kwargs"] = pk
+    if cfg.action_noise is not None:
+        sigma = float(cfg.action_noise.get("sigma", 0.1))
+        mean, sig = np.zeros(n_actions), sigma * np.ones(n_actions)
+        noise_cls = (
+            NormalActionNoise
+            if cfg.action_noise["type"] == "normal"
+            else OrnsteinUhlenbeckActionNoise
+        )
+        hp["action_noise"] = noise_cls(mean=mean, sigma=sig)
+    if cfg.her:
+        from stable_baselines3 import HerReplayBuffer
+
+        hp["replay_buffer_class"] = HerReplayBuffer
+        hp["replay_buffer_kwargs"] = {**dict(cfg.her_kwargs), **hp.get("replay_buffer_kwargs", {})}
+    return hp
+
+
+def _logger(rd: RunDir, tensorboard: bool = True) -> Logger:
+    outputs: list[Any] = [JsonlMetrics(rd.metrics_path)]
+    if tensorboard:
+        rd.tb_dir.mkdir(parents=True, exist_ok=True)
+        outputs.append(TensorBoardOutputFormat(str(rd.tb_dir)))
+    return Logger(folder=None, output_formats=outputs)
+
+
+class _Session:
+    """One training segment: envs, model, callbacks, and the status bookkeeping."""
+
+    def __init__(self, cfg: TrainConfig, rd: RunDir, spec: ArmSpec, dr: DRConfig) -> None:
+        self.cfg, self.rd, self.spec, self.dr = cfg, rd, spec, dr
+        self.algo = get_algo(cfg.algo)
+        self.table = _action_table(cfg, self.algo, spec)
+        self.status = rd.read_status()
+        self.segment = int(self.status.get("segments", 0))
+        self.seeds = _segment_seeds(cfg.seed, cfg.n_envs, self.segment)
+        self.wall_before_s = float(self.status.get("wall_s", 0.0))
+        self._t0 = time.perf_counter()
+
+    def vec_env(self, vecnormalize: Path | None) -> VecEnv:
+        self.rd.monitor_dir.mkdir(parents=True, exist_ok=True)
+        venv: VecEnv = build_vec_env(
+            self.cfg.env_id,
+            _env_kwargs(self.cfg, self.dr, self.spec),
+            self.seeds,
+            self.cfg.vec_env,
+            self.table,
+            str(self.rd.monitor_dir / f"seg{self.segment}"),
+            self.cfg.action_rate_penalty,
+        )
+        if vecnormalize is not None:
+            venv = VecNormalize.load(str(vecnormalize), venv)
+            venv.training = True
+        elif self.cfg.normalize or self.cfg.normalize_reward:
+            image = policy_for(venv.observation_space) == "CnnPolicy"
+            venv = VecNormalize(
+                venv,
+                norm_obs=self.cfg.normalize and not image,
+                norm_reward=self.cfg.normalize_reward,
+                gamma=float(self.cfg.hyperparams.get("gamma", 0.99)),
+            )
+        return venv
+
+    def wall_s(self) -> float:
+        return self.wall_before_s + time.perf_counter() - self._t0
+
+    def write_status(self, model: BaseAlgorithm, finished: bool, ckpt: Checkpoint | None) -> None:
+        self.status.update(
+            {
+                "steps_done": int(model.num_timesteps),
+                "steps_target": self.cfg.steps,
+                "finished": finished,
+                "wall_s": round(self.wall_s(), 3),
+                "segments": self.segment + 1,
+                "updated_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+            }
+        )
+        if ckpt is not None:
+            self.status["latest_checkpoint"] = ckpt.model.name
+        self.rd.write_status(self.status)
+
+    def learn(self, model: BaseAlgorithm) -> TrainResult:
+        cfg, rd = self.cfg, self.rd
+        model.set_logger(_logger(rd))
+        start = int(model.num_timesteps)
+        ckpt_cb = RunDirCheckpoint(
+            rd,
+            cfg.checkpoint_interval,
+            cfg.save_replay,
+            lambda c: self.write_status(model, False, c),
+        )
+        wall = WallClockLimit(cfg.max_wall_s)
+        callbacks = CallbackList(
+            [
+                ProgressBar(cfg.steps, enabled=cfg.progress),
+                EpisodeLog(rd.episodes_path, self.wall_before_s),
+                ckpt_cb,
+                wall,
+            ]
+        )
+        self.write_status(model, False, None)
+        t0 = time.perf_counter()
+        try:
+            model.learn(
+                total_timesteps=max(cfg.steps - start, 0),
+                callback=callbacks,
+                log_interval=cfg.log_interval,
+                reset_num_timesteps=False,
+                tb_log_name="run",
+            )
+        except KeyboardInterrupt:  # leave a checkpoint so --resume loses nothing
+            ckpt = save_checkpoint(model, rd, cfg.save_replay)
+            self.write_status(model, False, ckpt)
+            raise
+        finally:
+            # SB3 dumps before each update, so the last update's figures are still pending
+            model.logger.dump(model.num_timesteps)
+            model.logger.close()
+        elapsed = time.perf_counter() - t0
+        ckpt = save_checkpoint(model, rd, cfg.save_replay)
+        vn = model.get_vec_normalize_env()
+        if vn is not None:
+            atomic_write(rd.vecnormalize_path, lambda fh: pickle.dump(vn, fh))
+        atomic_write(rd.model_path, lambda fh: model.save(cast(io.BufferedIOBase, fh)))
+        if wall.hit:
+            self.status["stopped_by_wall_limit_s"] = cfg.max_wall_s
+        self.write_status(model, True, ckpt)
+        env = model.get_env()
+        if env is not None:
+            env.close()
+        succ = model.ep_success_buffer
+        return TrainResult(
+            run_dir=rd.path,
+            steps_done=int(model.num_timesteps),
+            wall_s=self.wall_s(),
+            steps_per_s=(model.num_timesteps - start) / max(elapsed, 1e-9),
+            train_success_rate=float(np.mean(succ)) if succ else None,
+            stopped_by_wall_limit=wall.hit,
+        )
+
+
+def train(cfg: TrainConfig) -> TrainResult:
+    """Train from scratch into ``cfg.run_dir`` (which must be new or empty)."""
+    th.set_num_threads(1)
+    rd = RunDir(cfg.run_dir)
+    if not rd.is_empty():
+        raise RunDirError(
+            f"run dir {cfg.run_dir!r} is not empty; pass --resume to continue it "
+            "or choose a new --run-dir"
+        )
+    spec = load_spec(cfg.spec_path)
+    dr = load_preset(cfg.dr)
+    rd.path.mkdir(parents=True, exist_ok=True)
+    try:
+        session, model, config = _setup(cfg, rd, spec, dr)
+    except BaseException:  # nothing half-made stays behind: the folder was empty before
+        shutil.rmtree(rd.path, ignore_errors=True)
+        raise
+    rd.write_config(config)
+    return session.learn(model)
+
+
+def _setup(
+    cfg: TrainConfig, rd: RunDir, spec: ArmSpec, dr: DRConfig
+) -> tuple[_Session, BaseAlgorithm, dict[str, Any]]:
+    """Envs, model and the resolved config of a new run."""
+    import sim2real.envs as envs
+
+    session = _Session(cfg, rd, spec, dr)
+    venv = session.vec_env(None)
+    algo = session.algo
+    policy = cfg.policy or policy_for(venv.observation_space)
+    try:
+        n_actions = int(venv.action_space.shape[0]) if session.table is None else 0  # type: ignore[index]
+        model = algo.cls(
+            policy,
+            venv,
+            seed=cfg.seed,
+            device="cpu",
+            verbose=0,
+            **_hyperparams(cfg, algo, n_actions),
+        )
+    except (TypeError, ValueError, AssertionError, KeyError) as exc:
+        venv.close()
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"{cfg.algo} rejected the configuration: {msg}") from None
+    venv.seed(session.seeds[0])  # model seeding reseeded the envs; restore the recorded seeds
+    one = envs.make(cfg.env_id, **_env_kwargs(cfg, dr, spec))
+    obs_desc = _obs_description(one)
+    one.close()
+    config = {
+        "format": FORMAT_VERSION,
+        "env_id": cfg.env_id,
+        "algo": cfg.algo,
+        "dr": dr.name,
+        "dr_source": cfg.dr,
+        "dr_ranges": dr.to_dict(),
+        "seed": cfg.seed,
+        "steps": cfg.steps,
+        "spec": spec.to_dict(),
+        "spec_name": spec.name,
+        "spec_fingerprint": spec.fingerprint(),
+        "training_seeds": session.seeds,
+        "policy": policy,
+        "normalize": cfg.normalize,
+        "action_table": None if session.table is None else session.table.tolist(),
+        "env_kwargs": dict(cfg.env_kwargs),
+        "train": cfg.to_dict(),
+        "versions": versions(),
+        "created_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        **obs_desc,
+    }
+    return session, model, config
+
+
+def resume(
+    run_dir: str | Path,
+    steps: int | None = None,
+    progress: bool | None = None,
+    max_wall_s: float | None = None,
+) -> TrainResult:
+    """Continue a run from its newest checkpoint; ``steps`` may raise the total budget."""
+    th.set_num_threads(1)
+    rd = RunDir(run_dir)
+    config = rd.read_config()
+    ckpt = rd.latest_checkpoint()
+    if ckpt is None:
+        raise RunDirError(f"run dir {str(run_dir)!r} has no checkpoint to resume from")
+    train_dict = dict(config.get("train", {}))
+    if steps is not None:
+        if steps < ckpt.steps:
+            raise ConfigError(
+                f"--steps {steps} is below the {ckpt.steps} steps the run already has"
+            )
+        train_dict["steps"] = steps
+    if progress is not None:
+        train_dict["progress"] = progress
+    if max_wall_s is not None:
+        train_dict["max_wall_s"] = max_wall_s
+    train_dict["run_dir"] = str(run_dir)
+    try:
+        cfg = TrainConfig.from_dict(train_dict)
+        spec = ArmSpec.from_dict(config["spec"], source=f"{run_dir}/config.json spec")
+        dr = DRConfig.from_dict(str(config["dr"]), config["dr_ranges"])
+    except (KeyError, TypeError) as exc:
+        raise RunDirError(f"run dir {str(run_dir)!r}: bad config.json ({exc})") from None
+    if spec.fingerprint() != config["spec_fingerprint"]:
+        raise RunDirError(f"run dir {str(run_dir)!r}: spec does not match its fingerprint")
+    session = _Session(cfg, rd, spec, dr)
+    if ckpt.steps >= cfg.steps and rd.read_status().get("finished"):
+        raise RunDirError(
+            f"run dir {str(run_dir)!r} already finished {ckpt.steps} steps; "
+            "pass a larger --steps to train further"
+        )
+    venv = session.vec_env(ckpt.vecnormalize)
+    algo = session.algo
+    try:
+        model = algo.cls.load(str(ckpt.model), env=venv, device="cpu")  # type: ignore[attr-defined]
+    except Exception as exc:  # a truncated zip, a pickle from another version
+        venv.close()
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RunDirError(
+            f"run dir {str(run_dir)!r}: cannot load {ckpt.model.name} ({msg})"
+        ) from None
+    if ckpt.replay is not None and hasattr(model, "load_replay_buffer"):
+        model.load_replay_buffer(str(ckpt.replay))
+    venv.seed(session.seeds[0])
+    config["training_seeds"] = sorted(set(config["training_seeds"]) | set(session.seeds))
+    config["steps"] = cfg.steps
+    config["train"] = cfg.to_dict()
+    rd.write_config(config)
+    return session.learn(model)
