@@ -229,7 +229,8 @@ def test_cut_link_trips_the_firmware_watchdog(
         hold = emu.applied("watchdog_hold")[0].t_s
         detach = emu.applied("watchdog_detach")[0].t_s
         wd = spec.safety.watchdog_timeout_s
-        assert wd <= hold - last_rx <= wd + 0.005  # holds at 250 ms (+ one ms of clock granularity)
+        # holds at 250 ms, to the firmware clock's 1 ms granularity either way
+        assert wd - 0.001 <= hold - last_rx <= wd + 0.005
         assert detach - hold == pytest.approx(spec.safety.hold_before_disable_s, abs=0.005)
         assert not emu.torque_enabled().any()
         emu.restore()
