@@ -101,12 +101,14 @@ def test_wire_time_follows_the_baud(spec: ArmSpec, make_emulator: Callable[..., 
                 t = time.perf_counter()
                 arm.command(spec.actuator_park_rad)
                 times.append(time.perf_counter() - t)
-        return float(np.median(times))
+        # The minimum, not the median: scheduling delays from other load only ever add time.
+        return float(np.min(times))
 
     slow, fast = p50(115200), p50(1_000_000)
     request, reply = 8 + 2 * 4, 8 + 3 + 4 * 4
-    assert slow >= (request + reply) * 10 / 115200  # the bytes take that long on the wire
-    assert slow > fast + 0.002
+    wire_slow, wire_fast = (request + reply) * 10 / 115200, (request + reply) * 10 / 1_000_000
+    assert slow >= wire_slow  # the bytes take that long on the wire
+    assert slow - fast > 0.7 * (wire_slow - wire_fast)
 
 
 def test_wrong_baud_gives_no_reply_with_a_baud_hint(
