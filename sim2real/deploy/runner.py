@@ -188,7 +188,8 @@ def deploy(
     policy = load_policy(policy_path)
     meta = policy.meta
     meta.check_spec(spec.fingerprint())
-    env = envs.make(meta.env_id, dr="none", spec=spec)
+    # The decoder must scale actions as in training (presets differ: 0.05 or 0.1 rad per step).
+    env = envs.make(meta.env_id, dr="none", spec=spec, max_delta_rad=meta.max_delta_rad)
     try:
         base = env.unwrapped
         assert isinstance(base, envs.Arm3Env)
