@@ -47,7 +47,7 @@ def summarise(jobs: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
             "seeds": [j["seed"] for j in js],
             "success_rate_per_seed": rates,
             "success_rate_mean": m,
-            "success_rate_seed_ci95": [lo, hi],
+            "success_rate_seed_ci95": [max(0.0, lo), min(1.0, hi)],  # a rate stays in [0, 1]
             "success_rate_pooled": k / n if n else math.nan,
             "success_rate_pooled_wilson95": list(wilson_interval(k, n)),
             "median_final_distance_m": float(
@@ -84,6 +84,8 @@ def plot_learning(jobs: Sequence[Mapping[str, Any]], path: Path, title: str) -> 
         x = js[0]["curves"]["bin_centres"]
         for ax, (key, label) in zip(axes, LEARNING_PANELS, strict=True):
             mean, lo, hi = _band([j["curves"]["learning"][key] for j in js])
+            if key == "success_rate":
+                lo, hi = list(np.clip(lo, 0.0, 1.0)), list(np.clip(hi, 0.0, 1.0))
             (line,) = ax.plot(x, mean, label=f"{algo} ({len(js)} seeds)")
             ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, linewidth=0)
             ax.set_xlabel("env steps")

@@ -179,7 +179,8 @@ def plot_heatmap(
             ax.set_xticks(range(len(grid[cn])), [f"{v:g}" for v in grid[cn]])
             ax.set_yticks(range(len(grid[rn])), [f"{v:g}" for v in grid[rn]])
             ax.set_xlabel(_label(cn))
-            ax.set_ylabel(_label(rn))
+            if ax is axes[0][0]:
+                ax.set_ylabel(_label(rn))
             if f is not None:
                 ax.set_title(f"{names[0]} = {f:g}")
         assert im is not None
