@@ -12,8 +12,9 @@ What it emulates besides the device logic:
   * faults: corrupted bytes, dropped frames and delayed replies (per write chunk, which is one
     frame for a host that writes frame by frame), a cut link (``cut``/``restore``), an unplugged
     port (``unplug``) and a brown-out reset (``brownout``);
-  * servo dynamics (emulator/dynamics.py), with a thread-safe ``true_positions_rad()`` for
-    rendering virtual cameras.
+  * servo dynamics (emulator/dynamics.py), with an optional command latency (a target acts
+    ``command_latency_s`` after the device received it), and a thread-safe
+    ``true_positions_rad()`` for rendering virtual cameras.
 Every command the device applied is logged (``applied()``), so tests compare it with what the
 host believes it sent.
 """
@@ -23,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import heapq
+import math
 import os
 import random
 import select
@@ -92,6 +94,7 @@ class EmulatorConfig:
     latency_jitter_s: float = 0.0  # uniform extra latency in [0, jitter]
     noise_rad: float = 0.0  # std of the position reading noise
     droop_rad: float = 0.0  # sag of the pitch joints while powered
+    command_latency_s: float = 0.0  # dead time from receiving a target to the servo acting on it
     tick_s: float = 0.002  # device control loop and dynamics step
     wire_timing: bool = True  # add (request + reply bytes) * 10 / baud to every reply
     check_baud: bool | None = None  # None: yes, except for the Maestro (it auto-detects)
@@ -102,9 +105,16 @@ class EmulatorConfig:
     flashed_calibration: ArmCalibration | None = None  # s2r: calibration limits.h was built with
 
     def __post_init__(self) -> None:
-        for key in ("reply_latency_s", "latency_jitter_s", "noise_rad", "droop_rad"):
-            if getattr(self, key) < 0:
-                raise HardwareError(f"{key} must be >= 0, got {getattr(self, key)!r}")
+        for key in (
+            "reply_latency_s",
+            "latency_jitter_s",
+            "noise_rad",
+            "droop_rad",
+            "command_latency_s",
+        ):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value >= 0):
+                raise HardwareError(f"{key} must be finite and >= 0, got {value!r}")
         if self.tick_s <= 0:
             raise HardwareError(f"tick_s must be > 0, got {self.tick_s!r}")
         if self.baud is not None and self.baud <= 0:
@@ -157,7 +167,12 @@ class Emulator:
         self.mounting.check_protocol(protocol, frame)
         self.link = Path(link) if link is not None else None
         self.servos = ServoBank(
-            ServoParams.from_spec(self.spec, self.config.droop_rad, self.config.noise_rad),
+            ServoParams.from_spec(
+                self.spec,
+                self.config.droop_rad,
+                self.config.noise_rad,
+                self.config.command_latency_s,
+            ),
             self.spec.actuator_park_rad,
             seed=self.config.seed,
         )
@@ -366,7 +381,9 @@ class Emulator:
         dt = now - self._last_step_s
         if dt > 0:
             target, powered = self._device.drive()
-            self.servos.step(dt, target, powered)
+            # receive() advances to its arrival time before it changes a target, so a new target
+            # has been commanded since _last_step_s: its command latency counts from there
+            self.servos.advance(self._last_step_s, now, target, powered)
             self._last_step_s = now
 
     def _on_rx(self, data: bytes, now: float) -> None:
@@ -483,6 +500,7 @@ class Emulator:
             self._advance(now)
             assert self._device is not None
             self._device.reset(now, self._next_boot_id())
+            self.servos.drop_pending()
             self._outbox.clear()
             self._append_log(AppliedCommand(now, "reset", self.spec.actuator_ids, (), ()))
 

@@ -119,6 +119,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--jitter-ms", type=float, default=0.0, help="uniform extra latency")
     p.add_argument("--noise-rad", type=float, default=0.0, help="position reading noise (std)")
     p.add_argument("--droop-rad", type=float, default=0.0, help="gravity sag of the pitch joints")
+    p.add_argument(
+        "--command-latency-ms",
+        type=float,
+        default=0.0,
+        help="servo dead time: a received target takes effect this much later",
+    )
     p.add_argument("--corrupt", type=float, default=0.0, help="probability a frame gets a bad byte")
     p.add_argument("--drop", type=float, default=0.0, help="probability a frame is lost")
     p.add_argument("--delay-rate", type=float, default=0.0, help="probability a reply is late")
@@ -223,6 +229,7 @@ def _emulate(args: argparse.Namespace) -> int:
         latency_jitter_s=args.jitter_ms / 1000.0,
         noise_rad=args.noise_rad,
         droop_rad=args.droop_rad,
+        command_latency_s=args.command_latency_ms / 1000.0,
         seed=args.seed,
         faults=FaultConfig(
             corrupt_rate=args.corrupt,

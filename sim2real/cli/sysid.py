@@ -18,6 +18,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--droop", action="store_true", help="also fit gravity droop")
     parser.add_argument(
+        "--control-hz",
+        type=float,
+        default=20.0,
+        help="the policy's control rate: the DR preset's latency_steps are counted at it",
+    )
+    parser.add_argument(
         "--record", type=Path, default=None, help="run the excitation and write a log here"
     )
     parser.add_argument("--backend", default="mock", help="mock | serial (with --record)")
@@ -66,7 +72,9 @@ def run(args: argparse.Namespace) -> int:
     fit, rms = fit_servo(trajs, spec, fit_droop=args.droop)
     summary = {**asdict(fit), "rms_rad": rms, "logs": [str(p) for p in args.logs]}
     if args.out is not None:
-        spec_path, preset = write_outputs(args.out, spec, fit, rms, [p.name for p in args.logs])
+        spec_path, preset = write_outputs(
+            args.out, spec, fit, rms, [p.name for p in args.logs], args.control_hz
+        )
         summary.update(spec=str(spec_path), dr_preset=str(preset))
     if args.json:
         print(json.dumps(summary))

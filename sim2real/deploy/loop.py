@@ -245,6 +245,7 @@ class DeployLoop:
                         obs = self.builder.build(
                             {
                                 "joint_pos": state.positions_rad[: self._n_obs_joints],
+                                "joint_target": targets[: self._n_obs_joints],
                                 "ee_pos": percept.ee_m,
                                 "goal_pos": percept.goal_m,
                                 "goal_delta": percept.goal_m - percept.ee_m,

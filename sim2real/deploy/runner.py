@@ -200,6 +200,7 @@ def deploy(
             )
     finally:
         env.close()
+    meta.check_layout([(f.name, f.stop - f.start) for f in builder.layout()])
     if builder.size != meta.flat_obs_dim:
         raise ConfigError(
             f"policy expects {meta.flat_obs_dim} observations, the {meta.env_id} layout has "

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
+from gymnasium.envs.registration import WrapperSpec
 
 from sim2real.envs import pick, reach, trace  # noqa: F401  (modules register their tasks)
 from sim2real.envs.base import REWARDS, TASKS, Arm3Env, Arm3GoalEnv, Task, register_task
@@ -28,6 +29,7 @@ class EnvEntry:
     kwargs: dict[str, Any] = field(default_factory=dict)
     entry_point: str = ENTRY_POINT
     doc: str = ""
+    discrete_actions: bool = False  # the env's own action space is Discrete (no wrapper needed)
 
 
 ENV_TABLE: list[EnvEntry] = [
@@ -88,6 +90,7 @@ ENV_TABLE: list[EnvEntry] = [
         {"actions": "discrete"},
         entry_point=KUKA_FAST_ENTRY_POINT,
         doc="grasp from 48x48 RGB, 7 discrete actions, floating gripper (fast)",
+        discrete_actions=True,
     ),
     EnvEntry(
         "Sim2Real/KukaGraspFastCont-v0",
@@ -102,6 +105,7 @@ ENV_TABLE: list[EnvEntry] = [
         {"actions": "discrete"},
         entry_point=KUKA_ROBOSUITE_ENTRY_POINT,
         doc="grasp from 48x48 RGB, 7 discrete actions, robosuite IIWA",
+        discrete_actions=True,
     ),
     EnvEntry(
         "Sim2Real/KukaGraspCont-v0",
@@ -113,15 +117,51 @@ ENV_TABLE: list[EnvEntry] = [
 ]
 
 
+def forward_episode_length(env: gym.Env[Any, Any]) -> gym.Env[Any, Any]:
+    """Hand ``gym.make(id, max_episode_steps=N)``'s N down to the env itself.
+
+    Gymnasium takes ``max_episode_steps`` as its own argument: the env is built with its default
+    length and a ``TimeLimit`` cuts it at N. Our envs truncate (and Trace paces its seam, Kuka
+    closes the gripper) at their own ``max_episode_steps``, so without this an N above the default
+    is ignored and one below it ends episodes before the task's end-of-episode logic runs. It runs
+    as the registered ids' additional wrapper (after ``TimeLimit``) and returns ``env`` unchanged;
+    the N goes into the spec's kwargs too, so ``gym.make(env.spec)`` rebuilds the same env.
+    """
+    spec = env.spec  # TimeLimit's (cached) copy, carrying N
+    steps = None if spec is None else spec.max_episode_steps
+    base = env.unwrapped
+    if spec is None or steps is None or not hasattr(base, "max_episode_steps"):
+        return env
+    base.max_episode_steps = int(steps)
+    for s in (spec, base.spec):
+        if s is not None:
+            s.kwargs["max_episode_steps"] = int(steps)
+    return env
+
+
+_FORWARD_EPISODE_LENGTH = WrapperSpec(
+    name="ForwardEpisodeLength",
+    entry_point=f"{__name__}:forward_episode_length",
+    kwargs={},
+)
+
+
 def register_all() -> None:
-    """Register every id once (idempotent; other backends append rows before calling)."""
+    """Register every id once (idempotent; other backends append rows before calling).
+
+    No registered ``max_episode_steps``: each env truncates at its own length, and an explicit
+    ``max_episode_steps`` reaches it, whether passed to ``gym.make`` (see
+    ``forward_episode_length``) or as an env kwarg through an ``EnvSpec``.
+    """
     for entry in ENV_TABLE:
         if entry.id not in gym.registry:
             gym.register(
                 id=entry.id,
                 entry_point=entry.entry_point,
                 kwargs=dict(entry.kwargs),
+                max_episode_steps=None,
                 disable_env_checker=True,  # the contract tests run check_env on every id
+                additional_wrappers=(_FORWARD_EPISODE_LENGTH,),
             )
 
 
@@ -135,6 +175,12 @@ def resolve_env_id(name: str) -> str:
         if name in (e.id, e.short, e.id.split("/")[-1].removesuffix("-v0")):
             return e.id
     raise UnknownNameError("env", name, [e.id for e in ENV_TABLE])
+
+
+def has_discrete_actions(name: str) -> bool:
+    """Whether the id's own action space is ``Discrete`` (from the table: no env is built)."""
+    rid = resolve_env_id(name)
+    return next(e for e in ENV_TABLE if e.id == rid).discrete_actions
 
 
 def make(name: str, **kwargs: Any) -> gym.Env[Any, Any]:
@@ -153,6 +199,8 @@ __all__ = [
     "EnvEntry",
     "Task",
     "env_ids",
+    "forward_episode_length",
+    "has_discrete_actions",
     "make",
     "register_task",
     "resolve_env_id",

@@ -104,6 +104,11 @@ class Task(ABC):
                 ObsField("goal_pos", 3, "m", "desired goal estimate, base frame"),
                 ObsField("goal_delta", 3, "m", "desired goal minus achieved goal"),
             ]
+        # The command side: what was sent (joint_target − joint_pos is the motion still in the
+        # pipe, which is what a policy needs to stay stable under servo and camera lag).
+        fields.append(
+            ObsField("joint_target", n_joint_readings, "rad", "last commanded joint targets")
+        )
         fields.append(ObsField("prev_action", n_actions, "1", "last normalised action"))
         return tuple(fields)
 
@@ -352,6 +357,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         achieved, desired = self.task.goals(self, sensed)
         readings = {
             "joint_pos": sensed.joints_rad,
+            "joint_target": self._targets[: self._n_readings],
             "ee_pos": sensed.ee_m,
             "goal_pos": desired,
             "goal_delta": desired - achieved,

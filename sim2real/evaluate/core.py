@@ -67,7 +67,16 @@ class EvalTarget:
         import sim2real.envs as envs
 
         kwargs = {**self.env_kwargs, **overrides, "dr": dr, "spec": self.spec}
-        return lambda: envs.make(self.env_id, **kwargs)
+        meta = self.policy.meta
+
+        def make() -> gym.Env[Any, Any]:
+            env = envs.make(self.env_id, **kwargs)
+            builder = getattr(env.unwrapped, "builder", None)
+            if builder is not None:  # a stale policy must fail loudly, not act on shifted fields
+                meta.check_layout([(f.name, f.stop - f.start) for f in builder.layout()])
+            return env
+
+        return make
 
     def held_out_seeds(self, episodes: int, offset: int = 0) -> list[int]:
         if not 1 <= episodes <= MAX_EPISODES:

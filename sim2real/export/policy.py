@@ -97,6 +97,16 @@ class PolicyMeta:
                 f"(fingerprint {self.spec_fingerprint}), not for fingerprint {fingerprint}"
             )
 
+    def check_layout(self, names_sizes: list[tuple[str, int]]) -> None:
+        """Refuse an observation layout other than the policy's: same size is not same meaning."""
+        trained = [(str(f["name"]), int(f["stop"]) - int(f["start"])) for f in self.obs_layout]
+        if trained and trained != names_sizes:
+            raise PolicyError(
+                f"policy {self.source!r} was trained on observation layout "
+                f"{[n for n, _ in trained]}; this version builds {[n for n, _ in names_sizes]} "
+                "(retrain the policy)"
+            )
+
     @property
     def flat_obs_dim(self) -> int:
         return int(np.prod(self.obs_shape))

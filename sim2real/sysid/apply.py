@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import yaml
 
 from hardware.spec import ArmSpec
+from sim2real.errors import ConfigError
 from sim2real.sysid.model import ServoFit
 
 
@@ -19,16 +21,30 @@ def updated_spec(spec: ArmSpec, fit: ServoFit) -> ArmSpec:
     )
 
 
+def latency_steps_range(latency_s: float, control_hz: float) -> list[float]:
+    """DR range of ``actuation.latency_steps`` for a fitted dead time, at the policy's rate.
+
+    The env rounds a uniform sample to whole control steps, so the range spans at least one step
+    centred on ``latency_s * control_hz`` (the rounded samples then average to the fractional
+    value: 40 ms at 20 Hz is 0.8 steps, one step 80 % of the time) and ±20 % beyond that."""
+    if not (math.isfinite(control_hz) and control_hz > 0):
+        raise ConfigError(f"control_hz must be finite and > 0, got {control_hz!r}")
+    steps = float(latency_s) * control_hz
+    low = max(0.0, min(0.8 * steps, steps - 0.5))
+    high = max(1.2 * steps, steps + 0.5)
+    return [round(low, 3), round(high, 3)]
+
+
 def dr_centre(
     fit: ServoFit, spec: ArmSpec, control_hz: float = 20.0
 ) -> dict[str, dict[str, list[float]]]:
-    """The actuation ranges of a preset, ±20 % around the fit (latency in whole control steps).
+    """The actuation ranges of a preset, ±20 % around the fit (latency in control steps at
+    ``control_hz``, the policy's rate).
 
     ``max_speed_scale`` is relative to the *updated* spec, so it is centred on 1."""
-    latency_steps = fit.latency_s * control_hz
     return {
         "actuation": {
-            "latency_steps": [float(round(latency_steps))] * 2,
+            "latency_steps": latency_steps_range(fit.latency_s, control_hz),
             "max_speed_scale": [0.8, 1.2],
             "deadband_rad": [
                 round(float(0.8 * fit.deadband_rad), 5),
@@ -40,16 +56,24 @@ def dr_centre(
 
 
 def write_outputs(
-    out_spec: Path, spec: ArmSpec, fit: ServoFit, rms_rad: float, sources: list[str]
+    out_spec: Path,
+    spec: ArmSpec,
+    fit: ServoFit,
+    rms_rad: float,
+    sources: list[str],
+    control_hz: float = 20.0,
 ) -> tuple[Path, Path]:
     """Both files atomically; the preset sits beside the spec as ``<stem>.dr.yaml``."""
     from hardware.atomic import atomic_write_text
 
     new = updated_spec(spec, fit)
-    preset_text = yaml.safe_dump(dr_centre(fit, new), sort_keys=False)  # fails before any write
+    # built before any write, so a bad control_hz leaves nothing half-written
+    preset_text = yaml.safe_dump(dr_centre(fit, new, control_hz), sort_keys=False)
     header = (
         f"ArmSpec {new.name}: servo model fitted by `sim2real sysid` to {', '.join(sources)}\n"
-        f"fit RMS reading error {rms_rad:.5f} rad; droop {fit.droop_rad:+.4f} rad"
+        f"fit RMS reading error {rms_rad:.5f} rad; droop {fit.droop_rad:+.4f} rad; "
+        f"latency {fit.latency_s * 1000:.1f} ms ({fit.latency_s * control_hz:.2f} steps at "
+        f"{control_hz:g} Hz)"
     )
     preset = out_spec.with_name(out_spec.stem + ".dr.yaml")
     text = "# DR preset centred on the sysid fit (sim2real sysid); use with --dr " + str(preset)

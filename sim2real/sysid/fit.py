@@ -86,6 +86,17 @@ def _initial_guess(trajs: Sequence[Trajectory]) -> ServoFit:
     )
 
 
+LATENCY_SCAN_S = np.arange(0.0, 0.3001, 0.005)  # candidate dead times for the starting point
+
+
+def _latency_scan(objective: Callable[[ServoFit], float], start: ServoFit) -> ServoFit:
+    """Start from the best latency on a coarse grid (other parameters at their guess): a
+    simplex started 100 ms away from the dead time can settle in a local minimum that trades
+    the missing delay for lag and dead band."""
+    costs = [objective(replace(start, latency_s=float(lat))) for lat in LATENCY_SCAN_S]
+    return replace(start, latency_s=float(LATENCY_SCAN_S[int(np.argmin(costs))]))
+
+
 def _nelder_mead(
     objective: Callable[[ServoFit], float], start: ServoFit, fit_droop: bool, max_iter: int
 ) -> ServoFit:
@@ -129,14 +140,15 @@ def fit_servo(
     """(fit, RMS reading error in rad).
 
     Nelder–Mead, because the dead band and the speed limit make the error surface kinked, in
-    stages so that droop cannot trade off against the lag: dynamics first, then the droop alone
-    (a 1-D bounded search), then everything together from there."""
+    stages so that droop cannot trade off against the lag: the latency on a coarse grid, the
+    dynamics from there, then the droop alone (a 1-D bounded search), then everything together.
+    The simulation applies the latency to the sub-step, so the cost is continuous in it."""
     mask = np.array([1.0 if j.axis.lstrip("-") == "y" else 0.0 for j in spec.joints])
 
     def objective(f: ServoFit) -> float:
         return _robust_cost(f, trajs, mask)
 
-    best = _nelder_mead(objective, _initial_guess(trajs), False, max_iter)
+    best = _nelder_mead(objective, _latency_scan(objective, _initial_guess(trajs)), False, max_iter)
     if fit_droop:
         droop = minimize_scalar(
             lambda d: objective(replace(best, droop_rad=d)), bounds=(-0.2, 0.2), method="bounded"

@@ -3,6 +3,16 @@
 Per actuator: the command takes effect ``latency_s`` after it was sent; the horn moves towards
 ``target + droop`` with a first-order lag ``time_constant_s``, no faster than
 ``max_speed_rad_s``, and not at all while the error is inside ``deadband_rad``.
+
+What ``latency_s`` means: the command-to-motion dead time *as the host log sees it*, i.e. from
+the host's stamp before sending a command (``t_cmd_s``) to the servo starting to act on it, minus
+the delay between the host's stamp before a read (``t_s``) and the device sampling the position.
+It contains the servo's own dead time (PWM frame, firmware) plus the write's transport (USB
+adapter, wire), less the read request's transport; the reply's return trip does not count (the
+device samples when the request arrives). Where writes and read requests take the same path the
+transports cancel and it is the servo's own dead time. Either way it is the delay, beyond the
+host's own stamps, between a position being sampled and a command computed from it acting, which
+is what the DR's ``actuation.latency_steps`` stands for.
 """
 
 from __future__ import annotations
@@ -38,30 +48,59 @@ class ServoFit:
 
 
 @numba.njit(cache=False)
+def _servo_step(
+    x: np.ndarray,
+    target: np.ndarray,
+    offset: np.ndarray,
+    h: float,
+    tau: float,
+    vmax: float,
+    deadband: float,
+) -> None:  # pragma: no cover - compiled
+    """One exact first-order step of length h, speed-limited, with the dead band, in place."""
+    alpha = 1.0 - math.exp(-h / tau)
+    vmax_h = vmax * h
+    for j in range(len(x)):
+        err = target[j] + offset[j] - x[j]
+        if abs(err) > deadband:
+            move = err * alpha
+            if move > vmax_h:
+                move = vmax_h
+            elif move < -vmax_h:
+                move = -vmax_h
+            x[j] += move
+
+
+@numba.njit(cache=False)
 def _integrate(
     idx: np.ndarray,
+    after: np.ndarray,
     u: np.ndarray,
     x0: np.ndarray,
     offset: np.ndarray,
-    alpha: float,
-    vmax_dt: float,
+    dt: float,
+    tau: float,
+    vmax: float,
     deadband: float,
 ) -> np.ndarray:  # pragma: no cover - compiled
+    """Step i covers (t_i - dt, t_i]; command idx[i] is in force for the last ``after[i]``
+    fraction of it and the one before for the rest (nothing moves before the first command).
+    Splitting the step makes the result continuous in the latency instead of jumping by whole
+    steps, so Nelder–Mead sees a slope."""
     n_t, n = len(idx), len(x0)
     out = np.empty((n_t, n))
     x = x0.copy()
     for i in range(n_t):
         k = idx[i]
         if k >= 0:
-            for j in range(n):
-                err = u[k, j] + offset[j] - x[j]
-                if abs(err) > deadband:
-                    move = err * alpha
-                    if move > vmax_dt:
-                        move = vmax_dt
-                    elif move < -vmax_dt:
-                        move = -vmax_dt
-                    x[j] += move
+            w = after[i]
+            if w >= 1.0:
+                _servo_step(x, u[k], offset, dt, tau, vmax, deadband)
+            else:
+                if k >= 1:
+                    _servo_step(x, u[k - 1], offset, (1.0 - w) * dt, tau, vmax, deadband)
+                if w > 0.0:
+                    _servo_step(x, u[k], offset, w * dt, tau, vmax, deadband)
         out[i] = x
     return out
 
@@ -74,20 +113,32 @@ def simulate(
     x0_rad: np.ndarray,
     droop_mask: np.ndarray,
 ) -> np.ndarray:
-    """Positions (len(t_read), n) at the read times, for commands u (k, n) sent at t_cmd (k,)."""
+    """Positions (len(t_read), n) at the read times, for commands u (k, n) sent at t_cmd (k,).
+
+    Command k acts from ``t_cmd_s[k] + latency_s`` on, to the sub-step; readings are linearly
+    interpolated between integration steps."""
     t0 = min(t_cmd_s[0], t_read_s[0])
-    t_end = max(t_cmd_s[-1], t_read_s[-1]) + SIM_DT_S
+    t_end = max(t_cmd_s[-1], t_read_s[-1]) + 2 * SIM_DT_S
     grid = np.arange(t0, t_end, SIM_DT_S)
-    # Which command is in force at each grid time (after the latency): -1 = none yet.
-    idx = np.searchsorted(t_cmd_s + fit.latency_s, grid, side="right") - 1
+    switch_s = np.asarray(t_cmd_s, dtype=np.float64) + fit.latency_s
+    # Which command is in force at the end of each step (after the latency): -1 = none yet,
+    # and for how much of the step it has been.
+    idx = np.searchsorted(switch_s, grid, side="right") - 1
+    after = np.ones(len(grid))
+    has = idx >= 0
+    after[has] = np.clip((grid[has] - switch_s[idx[has]]) / SIM_DT_S, 0.0, 1.0)
     out = _integrate(
         idx.astype(np.int64),
+        after,
         np.ascontiguousarray(u_rad, dtype=np.float64),
         np.asarray(x0_rad, dtype=np.float64),
         fit.droop_rad * np.asarray(droop_mask, dtype=np.float64),
-        1.0 - math.exp(-SIM_DT_S / fit.time_constant_s),
-        fit.max_speed_rad_s * SIM_DT_S,
+        SIM_DT_S,
+        fit.time_constant_s,
+        fit.max_speed_rad_s,
         fit.deadband_rad,
     )
-    read_idx = np.clip(np.round((t_read_s - t0) / SIM_DT_S).astype(int), 0, len(grid) - 1)
-    return out[read_idx]
+    pos = np.clip((np.asarray(t_read_s) - t0) / SIM_DT_S, 0.0, len(grid) - 1.0)
+    i0 = np.minimum(pos.astype(np.int64), len(grid) - 2)
+    f = (pos - i0)[:, None]
+    return out[i0] * (1.0 - f) + out[i0 + 1] * f

@@ -113,10 +113,11 @@ class AlgoSpec:
     name: str
     cls: Callable[..., Any]
     off_policy: bool
-    discrete_actions: bool
+    discrete_actions: bool  # acts in Discrete(N) only: Box envs get the joint-delta table
     action_noise: bool
     diagnostics: tuple[str, ...]
     doc: str
+    accepts_discrete: bool = False  # trains on an env whose own action space is Discrete
 
 
 _AC_DIAG = ("train/actor_loss", "train/critic_loss", "train/q_mean", "train/action_mean")
@@ -144,6 +145,7 @@ ALGOS: dict[str, AlgoSpec] = {
         False,
         ("train/clip_fraction", "train/entropy_loss", "train/value_loss", "train/approx_kl"),
         "clipped on-policy",
+        accepts_discrete=True,
     ),
     "a2c": AlgoSpec(
         "a2c",
@@ -153,6 +155,7 @@ ALGOS: dict[str, AlgoSpec] = {
         False,
         ("train/value_loss", "train/entropy_loss", "train/grad_norm"),
         "synchronous actor-critic",
+        accepts_discrete=True,
     ),
     "dqn": AlgoSpec(
         "dqn",
@@ -162,6 +165,7 @@ ALGOS: dict[str, AlgoSpec] = {
         False,
         ("rollout/exploration_rate", "train/q_mean", "train/loss"),
         "discrete joint deltas",
+        accepts_discrete=True,
     ),
 }
 

@@ -47,6 +47,7 @@ def _locked(path: Path) -> Iterator[None]:
 
 def _key(steps: int, seed: int, dr: str) -> str:
     from hardware.spec import load_spec
+    from sim2real.envs.reach import ReachTask
     from sim2real.train.config import find_preset
     from sim2real.train.runner import versions
 
@@ -59,6 +60,7 @@ def _key(steps: int, seed: int, dr: str) -> str:
             "preset": preset.read_text(),
             "overrides": QUICK_REACH_OVERRIDES,
             "spec": load_spec().fingerprint(),
+            "obs_layout": [f.name for f in ReachTask().obs_fields(3, 3, False)],
             "versions": versions(),
         },
         sort_keys=True,

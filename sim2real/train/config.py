@@ -101,6 +101,7 @@ class TrainConfig:
         object.__setattr__(self, "env_id", envs.resolve_env_id(self.env_id))
         algo = get_algo(self.algo)
         object.__setattr__(self, "algo", algo.name)
+        check_action_space(algo.name, self.env_id, envs.has_discrete_actions(self.env_id))
         load_preset(self.dr)  # unknown names / bad files fail here, before anything is written
         for name in ("steps", "n_envs", "log_interval"):
             value = getattr(self, name)
@@ -152,7 +153,7 @@ class TrainConfig:
                 "action_rate_penalty cannot be used with --her (HER recomputes rewards)"
             )
         _check_hyperparams(algo.name, self.hyperparams)
-        _check_env_kwargs(self.env_kwargs)
+        _check_env_kwargs(self.env_id, self.env_kwargs)
         object.__setattr__(
             self, "discrete_magnitudes", tuple(float(m) for m in self.discrete_magnitudes)
         )
@@ -208,6 +209,16 @@ def _algos() -> Mapping[str, Any]:
     return ALGOS
 
 
+def check_action_space(algo: str, env_id: str, discrete: bool) -> None:
+    """An env with its own ``Discrete`` actions trains as-is: only algos that take one can."""
+    if discrete and not _algos()[algo].accepts_discrete:
+        ok = sorted(n for n, a in _algos().items() if a.accepts_discrete)
+        raise ConfigError(
+            f"{algo} needs continuous actions but {env_id} has discrete actions; "
+            f"use one of: {', '.join(ok)}"
+        )
+
+
 def is_goal_env(env_id: str) -> bool:
     import sim2real.envs as envs
 
@@ -244,14 +255,23 @@ def _check_hyperparams(algo: str, hp: Mapping[str, Any]) -> None:
             raise UnknownNameError("activation_fn", str(act), ACTIVATIONS)
 
 
-def _check_env_kwargs(kw: Mapping[str, Any]) -> None:
-    from sim2real.envs.base import Arm3Env
+def _check_env_kwargs(env_id: str, kw: Mapping[str, Any]) -> None:
+    """Checked against the registered env class's own constructor: robosuite and Kuka envs take
+    ``robot``/``controller``/``objects`` that the arm envs do not."""
+    import importlib
 
-    params = set(inspect.signature(Arm3Env.__init__).parameters) - {"self"}
-    allowed = params - MANAGED_ENV_KWARGS
+    import sim2real.envs as envs
+
+    entry = next(e for e in envs.ENV_TABLE if e.id == envs.resolve_env_id(env_id))
+    module_name, _, class_name = entry.entry_point.partition(":")
+    env_cls = getattr(importlib.import_module(module_name), class_name)
+    params = set(inspect.signature(env_cls.__init__).parameters) - {"self"}
+    allowed = params - MANAGED_ENV_KWARGS - set(entry.kwargs)
     unknown = sorted(set(kw) - allowed)
     if unknown:
-        raise ConfigError(f"unknown env_kwargs {unknown}; valid: {', '.join(sorted(allowed))}")
+        raise ConfigError(
+            f"unknown env_kwargs {unknown} for {entry.id}; valid: {', '.join(sorted(allowed))}"
+        )
 
 
 # ---- presets ---------------------------------------------------------------------------------

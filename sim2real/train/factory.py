@@ -1,8 +1,11 @@
 """Building the (vectorised) environments a run trains on, the same way for train and resume.
 
 Each worker env is ``gym.make(id, dr=DRConfig, spec=ArmSpec, **env_kwargs)``, then the discrete
-action wrapper when the algorithm needs one, then SB3's ``Monitor`` (one CSV per env and training
-segment, with the final ``is_success`` and ``distance_m`` of every episode).
+action wrapper when the algorithm needs one (never for an env whose own actions are ``Discrete``),
+then SB3's ``Monitor`` (one CSV per env and training segment, with the final ``is_success`` and
+``distance_m`` of every episode). Image observations are transposed to channel-first here, not by
+SB3, so that a ``VecNormalize`` (reward scaling only: images are never normalised) sits outside
+the transpose and the frames an off-policy replay buffer stores have the policy's layout.
 """
 
 from __future__ import annotations
@@ -14,8 +17,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.preprocessing import is_image_space
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
+from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecTransposeImage
 
 MONITOR_KEYWORDS: tuple[str, ...] = ("is_success", "distance_m")
 VEC_ENV_CLASSES: dict[str, Callable[[list[Callable[[], gym.Env[Any, Any]]]], VecEnv]] = {
@@ -83,3 +86,32 @@ def policy_for(observation_space: gym.spaces.Space[Any]) -> str:
     if is_image_space(observation_space):
         return "CnnPolicy"
     return "MlpPolicy"
+
+
+def _needs_transpose(space: gym.spaces.Space[Any]) -> bool:
+    if isinstance(space, gym.spaces.Dict):
+        return any(_needs_transpose(s) for s in space.spaces.values())
+    return is_image_space(space) and not is_image_space_channels_first(space)  # type: ignore[arg-type]
+
+
+def transpose_images(venv: VecEnv) -> VecEnv:
+    """``VecTransposeImage`` where SB3 would add it itself (channel-last image observations)."""
+    return VecTransposeImage(venv) if _needs_transpose(venv.observation_space) else venv
+
+
+def obs_normalization(
+    observation_space: gym.spaces.Space[Any], normalize: bool
+) -> tuple[bool, list[str] | None]:
+    """``(norm_obs, norm_obs_keys)`` for ``VecNormalize``: every non-image part, no image.
+
+    A CNN scales uint8 pixels by 1/255 itself; normalised frames would be float32 (4x the replay
+    memory) and per-pixel statistics of a randomised scene mean nothing.
+    """
+    if not normalize:
+        return False, None
+    if isinstance(observation_space, gym.spaces.Dict):
+        keys = [k for k, s in observation_space.spaces.items() if not is_image_space(s)]
+        if not keys:
+            return False, None
+        return True, None if len(keys) == len(observation_space.spaces) else keys
+    return not is_image_space(observation_space), None

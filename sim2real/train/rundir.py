@@ -7,7 +7,8 @@ Layout (every file written atomically)::
                            seed, training seeds, hyperparameters, obs layout, versions
       status.json          steps done, finished flag, wall time, latest checkpoint
       model.zip            final SB3 model (written when training finishes)
-      vecnormalize.pkl     observation-normalisation statistics (when used)
+      vecnormalize.pkl     normalisation statistics (only when a VecNormalize was used: never
+                           for image observations unless rewards are normalised)
       checkpoints/         step_<N>.zip (+ .vecnormalize.pkl, + .replay.pkl for the newest)
       monitor/             SB3 Monitor CSVs, one per env and training segment
       episodes.csv         every finished training episode: timestep, return, length, success
@@ -244,14 +245,26 @@ class RunDir:
         return ckpts[-1] if ckpts else None
 
     def policy_files(self) -> tuple[Path, Path | None]:
-        """(model, vecnormalize-or-None) of the final model, else of the newest checkpoint."""
-        self.read_config()
+        """(model, vecnormalize-or-None) of the final model, else of the newest checkpoint.
+
+        Runs without observation normalisation (pixels) have no vecnormalize file; a run whose
+        config says it normalised observations must have one, or its policy would see raw inputs.
+        """
+        config = self.read_config()
         if self.model_path.is_file():
-            vn = self.vecnormalize_path
-            return self.model_path, vn if vn.is_file() else None
-        ckpt = self.latest_checkpoint()
-        if ckpt is None:
+            model, vn = self.model_path, self.vecnormalize_path
+            found = vn if vn.is_file() else None
+        else:
+            ckpt = self.latest_checkpoint()
+            if ckpt is None:
+                raise RunDirError(
+                    f"run dir {str(self.path)!r} has neither {MODEL_FILE} nor a checkpoint"
+                )
+            model, found = ckpt.model, ckpt.vecnormalize
+        norm = config.get("vecnormalize")  # absent in older configs: nothing to check
+        if found is None and isinstance(norm, dict) and norm.get("norm_obs"):
             raise RunDirError(
-                f"run dir {str(self.path)!r} has neither {MODEL_FILE} nor a checkpoint"
+                f"run dir {str(self.path)!r}: {model.name} was trained on normalised "
+                f"observations but its {VECNORM_FILE} is missing"
             )
-        return ckpt.model, ckpt.vecnormalize
+        return model, found

@@ -40,8 +40,14 @@ from sim2real.train.callbacks import (
     WallClockLimit,
     save_checkpoint,
 )
-from sim2real.train.config import EVAL_SEED_BASE, SCHEDULABLE, SCHEDULE_PREFIX, TrainConfig
-from sim2real.train.factory import build_vec_env, policy_for
+from sim2real.train.config import (
+    EVAL_SEED_BASE,
+    SCHEDULABLE,
+    SCHEDULE_PREFIX,
+    TrainConfig,
+    check_action_space,
+)
+from sim2real.train.factory import build_vec_env, obs_normalization, policy_for, transpose_images
 from sim2real.train.rundir import FORMAT_VERSION, Checkpoint, RunDir
 from sim2real.train.wrappers import delta_action_table
 
@@ -84,14 +90,20 @@ def _segment_seeds(seed: int, n_envs: int, segment: int) -> list[int]:
     return seeds
 
 
-def _action_table(cfg: TrainConfig, algo: AlgoSpec, spec: ArmSpec) -> np.ndarray | None:
-    if not algo.discrete_actions:
+def _action_table(cfg: TrainConfig, algo: AlgoSpec, env: gym.Env[Any, Any]) -> np.ndarray | None:
+    """The joint-delta table a discrete-only algo needs on a ``Box`` env, sized from the env's
+    own action space (a gripper, when the task has one, is its last dimension); ``None`` for an
+    algo that acts in the ``Box`` itself or an env whose own actions are ``Discrete``."""
+    space = env.action_space
+    if not algo.discrete_actions or isinstance(space, gym.spaces.Discrete):
         return None
-    from sim2real.envs import ENV_TABLE, TASKS
-
-    entry = next(e for e in ENV_TABLE if e.id == cfg.env_id)
-    gripper = TASKS[str(entry.kwargs.get("task", "reach"))].uses_gripper
-    return delta_action_table(spec.n_joints, cfg.discrete_magnitudes, gripper=gripper)
+    if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
+        raise ConfigError(f"{algo.name} cannot act in {cfg.env_id}'s action space {space}")
+    task = getattr(env.unwrapped, "task", None)
+    gripper = bool(getattr(task, "uses_gripper", False))
+    return delta_action_table(
+        space.shape[0] - int(gripper), cfg.discrete_magnitudes, gripper=gripper
+    )
 
 
 def _env_kwargs(cfg: TrainConfig, dr: DRConfig, spec: ArmSpec) -> dict[str, Any]:
@@ -106,6 +118,8 @@ def _obs_description(env: gym.Env[Any, Any]) -> dict[str, Any]:
         for f in base.builder.layout()  # type: ignore[attr-defined]
     ]
     space = env.observation_space
+    actions = base.action_space
+    discrete = isinstance(actions, gym.spaces.Discrete)
     keys = sizes = None
     shape = list(space.shape or ())
     if isinstance(space, gym.spaces.Dict):  # policies see the keys flattened in sorted order
@@ -119,8 +133,10 @@ def _obs_description(env: gym.Env[Any, Any]) -> dict[str, Any]:
         "obs_keys": keys,
         "obs_key_sizes": sizes,
         "observation_space": str(space),
-        "action_space": str(base.action_space),
-        "action_dim": int(base.action_space.shape[0]),  # type: ignore[index]
+        "action_space": str(actions),
+        # A Discrete env's policy outputs one index; a Box env's policy one value per dimension.
+        "action_dim": 1 if discrete else int(np.prod(actions.shape or (1,))),
+        "n_actions": int(actions.n) if discrete else None,  # type: ignore[attr-defined]
         "control_hz": 1.0 / base.control_dt_s,  # type: ignore[attr-defined]
         "max_delta_rad": float(base.decoder.max_delta_rad),  # type: ignore[attr-defined]
     }
@@ -182,9 +198,18 @@ class _Session:
     """One training segment: envs, model, callbacks, and the status bookkeeping."""
 
     def __init__(self, cfg: TrainConfig, rd: RunDir, spec: ArmSpec, dr: DRConfig) -> None:
+        import sim2real.envs as envs
+
         self.cfg, self.rd, self.spec, self.dr = cfg, rd, spec, dr
         self.algo = get_algo(cfg.algo)
-        self.table = _action_table(cfg, self.algo, spec)
+        probe = envs.make(cfg.env_id, **_env_kwargs(cfg, dr, spec))  # the spaces, as built
+        try:
+            discrete = isinstance(probe.action_space, gym.spaces.Discrete)
+            check_action_space(self.algo.name, cfg.env_id, discrete)
+            self.table = _action_table(cfg, self.algo, probe)
+            self.obs_desc = _obs_description(probe)
+        finally:
+            probe.close()
         self.status = rd.read_status()
         self.segment = int(self.status.get("segments", 0))
         self.seeds = _segment_seeds(cfg.seed, cfg.n_envs, self.segment)
@@ -192,24 +217,33 @@ class _Session:
         self._t0 = time.perf_counter()
 
     def vec_env(self, vecnormalize: Path | None) -> VecEnv:
+        """The training envs; a ``VecNormalize`` only when it normalises something."""
         self.rd.monitor_dir.mkdir(parents=True, exist_ok=True)
-        venv: VecEnv = build_vec_env(
-            self.cfg.env_id,
-            _env_kwargs(self.cfg, self.dr, self.spec),
-            self.seeds,
-            self.cfg.vec_env,
-            self.table,
-            str(self.rd.monitor_dir / f"seg{self.segment}"),
-            self.cfg.action_rate_penalty,
+        venv: VecEnv = transpose_images(
+            build_vec_env(
+                self.cfg.env_id,
+                _env_kwargs(self.cfg, self.dr, self.spec),
+                self.seeds,
+                self.cfg.vec_env,
+                self.table,
+                str(self.rd.monitor_dir / f"seg{self.segment}"),
+                self.cfg.action_rate_penalty,
+            )
         )
         if vecnormalize is not None:
-            venv = VecNormalize.load(str(vecnormalize), venv)
-            venv.training = True
-        elif self.cfg.normalize or self.cfg.normalize_reward:
-            image = policy_for(venv.observation_space) == "CnnPolicy"
+            with vecnormalize.open("rb") as fh:
+                saved: VecNormalize = pickle.load(fh)
+            if not (saved.norm_obs or saved.norm_reward):  # older pixel runs saved a no-op one
+                return venv
+            saved.set_venv(venv)
+            saved.training = True
+            return saved
+        norm_obs, keys = obs_normalization(venv.observation_space, self.cfg.normalize)
+        if norm_obs or self.cfg.normalize_reward:
             venv = VecNormalize(
                 venv,
-                norm_obs=self.cfg.normalize and not image,
+                norm_obs=norm_obs,
+                norm_obs_keys=keys,
                 norm_reward=self.cfg.normalize_reward,
                 gamma=float(self.cfg.hyperparams.get("gamma", 0.99)),
             )
@@ -318,14 +352,13 @@ def _setup(
     cfg: TrainConfig, rd: RunDir, spec: ArmSpec, dr: DRConfig
 ) -> tuple[_Session, BaseAlgorithm, dict[str, Any]]:
     """Envs, model and the resolved config of a new run."""
-    import sim2real.envs as envs
-
     session = _Session(cfg, rd, spec, dr)
     venv = session.vec_env(None)
     algo = session.algo
     policy = cfg.policy or policy_for(venv.observation_space)
     try:
-        n_actions = int(venv.action_space.shape[0]) if session.table is None else 0  # type: ignore[index]
+        space = venv.action_space
+        n_actions = int(np.prod(space.shape)) if isinstance(space, gym.spaces.Box) else 0
         model = algo.cls(
             policy,
             venv,
@@ -339,9 +372,7 @@ def _setup(
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"{cfg.algo} rejected the configuration: {msg}") from None
     venv.seed(session.seeds[0])  # model seeding reseeded the envs; restore the recorded seeds
-    one = envs.make(cfg.env_id, **_env_kwargs(cfg, dr, spec))
-    obs_desc = _obs_description(one)
-    one.close()
+    vn = venv if isinstance(venv, VecNormalize) else None
     config = {
         "format": FORMAT_VERSION,
         "env_id": cfg.env_id,
@@ -357,12 +388,21 @@ def _setup(
         "training_seeds": session.seeds,
         "policy": policy,
         "normalize": cfg.normalize,
+        # What the VecNormalize really does (None: no wrapper, no vecnormalize.pkl): image
+        # observations are never normalised, whatever ``normalize`` says.
+        "vecnormalize": None
+        if vn is None
+        else {
+            "norm_obs": vn.norm_obs,
+            "norm_obs_keys": vn.norm_obs_keys,
+            "norm_reward": vn.norm_reward,
+        },
         "action_table": None if session.table is None else session.table.tolist(),
         "env_kwargs": dict(cfg.env_kwargs),
         "train": cfg.to_dict(),
         "versions": versions(),
         "created_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-        **obs_desc,
+        **session.obs_desc,
     }
     return session, model, config
 

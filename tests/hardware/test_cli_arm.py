@@ -213,6 +213,10 @@ def test_gen_limits(tmp_path: Path) -> None:
         (["ping", "--port", "/dev/ttyNOPE0", "--arm-id", "nobody"], "no calibration file"),
         (["emulate", "--protocol", "s2r", "--corrupt", "2"], "corrupt_rate must be a probability"),
         (["emulate", "--mounting-offset", "1,2"], "expected 4 comma-separated values"),
+        (
+            ["emulate", "--command-latency-ms", "-5"],
+            "command_latency_s must be finite and >= 0, got -0.005",
+        ),
     ],
 )
 def test_bad_input_is_one_line(args: list[str], message: str, tmp_path: Path) -> None:

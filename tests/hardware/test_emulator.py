@@ -14,7 +14,14 @@ import serial
 
 from hardware.emulator import Emulator, EmulatorConfig, FaultConfig
 from hardware.emulator.dynamics import ServoBank, ServoParams
-from hardware.errors import DeviceResetError, HardwareError, NoReplyError, PortError, SafetyError
+from hardware.errors import (
+    DeviceResetError,
+    HardwareError,
+    NoReplyError,
+    PortError,
+    SafetyError,
+    SpecError,
+)
 from hardware.protocols import s2r
 from hardware.protocols.s2r import S2RFramer, encode_frame
 from hardware.serial_arm import SerialArm
@@ -69,6 +76,69 @@ def test_droop_and_noise(spec: ArmSpec) -> None:
     assert bank.pos[0] == 0.0 and bank.pos[3] == 0.0
     readings = np.array([bank.reading_rad()[0] for _ in range(400)])
     assert 0.006 < readings.std() < 0.014
+
+
+def test_command_latency_shifts_the_response_by_exactly_the_dead_time(spec: ArmSpec) -> None:
+    """A target received at t moves the horn as an undelayed one received at t + latency would;
+    the delay is applied to the sub-step even when a due time falls inside a tick."""
+    latency_s, tick_s = 0.0405, 0.002
+    late = _bank(spec, command_latency_s=latency_s)
+    plain = _bank(spec)
+    on = np.ones(4, dtype=bool)
+    step_at_s = 0.1
+    target = np.array([0.5, -0.2, 0.05, 0.0])
+    t_late, t_plain = [], []
+    for k in range(300):
+        t0, t1 = k * tick_s, (k + 1) * tick_s
+        late.advance(t0, t1, target if t0 >= step_at_s else np.zeros(4), on)
+        t_late.append(late.pos.copy())
+    # the reference: the same target, undelayed, at the due time split inside its tick
+    due_s = step_at_s + latency_s
+    t = 0.0
+    for k in range(300):
+        t1 = (k + 1) * tick_s
+        if t < due_s < t1:
+            plain.step(due_s - t, np.zeros(4), on)
+            plain.step(t1 - due_s, target, on)
+        else:
+            plain.step(t1 - t, target if t >= due_s else np.zeros(4), on)
+        t = t1
+        t_plain.append(plain.pos.copy())
+    np.testing.assert_allclose(np.array(t_late), np.array(t_plain), atol=1e-12)
+    first_move = int(np.argmax(np.abs(np.array(t_late)[:, 0]) > 0))
+    assert (first_move + 1) * tick_s == pytest.approx(due_s, abs=tick_s)  # not at step_at_s
+    late.drop_pending()  # a reboot forgets what was queued: the next target acts at once
+    late.advance(0.6, 0.63, np.zeros(4), on)  # queued, it would not act before 0.6405 s
+    assert late.pos[0] < 0.4
+
+
+def test_command_latency_is_validated(spec: ArmSpec) -> None:
+    with pytest.raises(HardwareError, match=r"command_latency_s must be finite and >= 0, got nan"):
+        EmulatorConfig(command_latency_s=float("nan"))
+    with pytest.raises(SpecError, match=r"command_latency_s must be finite and >= 0, got -0.01"):
+        ServoParams.from_spec(spec, command_latency_s=-0.01)
+
+
+def test_command_latency_over_the_pty(spec: ArmSpec) -> None:
+    """Through a real pty and the Feetech device: the horn starts moving one latency after the
+    goal was written, not before."""
+    latency_s = 0.06
+    with (
+        Emulator(spec, "feetech", EmulatorConfig(command_latency_s=latency_s)) as emu,
+        SerialArm(spec, emu.port, "feetech") as arm,
+    ):
+        arm.home()
+        home = spec.actuator_home_rad
+        assert emu.wait_until(lambda: bool(np.all(abs(emu.true_positions_rad() - home) < 0.02)))
+        time.sleep(0.2)  # settled: nothing queued is still to come
+        start = emu.true_positions_rad()
+        goal = home.copy()
+        goal[0] += 0.1
+        sent_s = time.monotonic()
+        arm.command(goal)
+        assert emu.wait_until(lambda: abs(emu.true_positions_rad()[0] - start[0]) > 1e-6, 1.0)
+        moved_after_s = time.monotonic() - sent_s
+    assert latency_s - 0.002 < moved_after_s < latency_s + 0.03
 
 
 # ---- the pty ------------------------------------------------------------------------------------

@@ -53,7 +53,10 @@ def test_scripted_grasp_lifts_the_cube_and_a_scripted_miss_does_not() -> None:
         cube = u.task.cube_position(u).copy()
         _drive_to(env, cube + [0, 0, 0.06], 10, grip=1.0)
         _drive_to(env, cube, 10, grip=1.0)
-        _drive_to(env, cube, 8, grip=-1.0)
+        open_reward = _drive_to(env, cube, 1, grip=1.0)[1]
+        assert not u.task.is_grasped(u)
+        closed_reward = _drive_to(env, cube, 8, grip=-1.0)[1]
+        assert u.task.is_grasped(u) and closed_reward > open_reward  # the grasp term pays
         out = _drive_to(env, cube + [0, 0, 0.09], 22, grip=-1.0)
         lifted = u.task.cube_position(u)[2] - cube[2]
         wins += out[4]["is_success"]
@@ -65,7 +68,7 @@ def test_scripted_grasp_lifts_the_cube_and_a_scripted_miss_does_not() -> None:
     _drive_to(env, cube + [0, 0, 0.06], 10, grip=1.0)
     _drive_to(env, cube, 18, grip=1.0)
     out = _drive_to(env, cube + [0, 0, 0.09], 22, grip=1.0)
-    assert not out[4]["is_success"]
+    assert not out[4]["is_success"] and not u.task.is_grasped(u)
     assert u.task.cube_position(u)[2] - cube[2] < 0.01
     env.close()
 

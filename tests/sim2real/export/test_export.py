@@ -117,9 +117,14 @@ def test_policy_interface_rejects_bad_input(runs: dict[str, Path], tmp_path: Pat
     with pytest.raises(PolicyError, match=r"observation shape \(7,\) does not match"):
         policy(np.zeros(7, dtype=np.float32))
     with pytest.raises(PolicyError, match="NaN"):
-        policy(np.full(15, np.nan, dtype=np.float32))
+        policy(np.full(policy.meta.flat_obs_dim, np.nan, dtype=np.float32))
     with pytest.raises(PolicyError, match="trained for arm spec"):
         policy.meta.check_spec("0000000000000000")
+    layout = [(str(f["name"]), int(f["stop"]) - int(f["start"])) for f in policy.meta.obs_layout]
+    policy.meta.check_layout(layout)  # its own layout passes
+    swapped = [layout[1], layout[0], *layout[2:]]  # same size, other meaning: refused
+    with pytest.raises(PolicyError, match="trained on observation layout"):
+        policy.meta.check_layout(swapped)
     policy.meta.check_spec(load_spec().fingerprint())
     (tmp_path / "junk.onnx").write_bytes(b"not a model")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pytest
@@ -20,16 +21,18 @@ SPEC = load_spec()
 DROOP_RAD = 0.03
 
 
-@pytest.fixture(scope="module")
-def excitation_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+LATENCY_S = 0.04
+
+
+def _record_excitation(tmp: Path, command_latency_s: float) -> Path:
     """A real excitation, as a user records one: ``sim2real sysid --record`` over a serial port
     to an emulated Feetech bus with known servo dynamics, served by ``sim2real arm emulate`` in
     its own process (its own interpreter, so its clock is not starved by ours)."""
-    tmp = tmp_path_factory.mktemp("sysid")
     link, path = tmp / "arm", tmp / "excite.npz"
     emulator = subprocess.Popen(
         [sys.executable, "-m", "sim2real", "arm", "emulate", "--protocol", "feetech",
-         "--link", str(link), "--droop-rad", str(DROOP_RAD), "--duration-s", "120"],
+         "--link", str(link), "--droop-rad", str(DROOP_RAD),
+         "--command-latency-ms", str(command_latency_s * 1000), "--duration-s", "120"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     try:
@@ -49,14 +52,57 @@ def excitation_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def test_fit_recovers_known_servo_parameters_within_10_percent(excitation_log: Path) -> None:
-    fit, rms = fit_servo([load_log(excitation_log, SPEC.n_joints)], SPEC, fit_droop=True)
+@pytest.fixture(scope="module")
+def excitation_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The emulator without command latency (the bus round trip remains)."""
+    return _record_excitation(tmp_path_factory.mktemp("sysid"), 0.0)
+
+
+@pytest.fixture(scope="module")
+def latent_excitation_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The emulator with a 40 ms command latency."""
+    return _record_excitation(tmp_path_factory.mktemp("sysid_latency"), LATENCY_S)
+
+
+def _assert_dynamics_recovered(fit: ServoFit, rms: float) -> None:
     truth = SPEC.servo
     assert fit.time_constant_s == pytest.approx(truth.time_constant_s, rel=0.1)
     assert fit.max_speed_rad_s == pytest.approx(truth.max_speed_rad_s, rel=0.1)
     assert fit.deadband_rad == pytest.approx(truth.deadband_rad, rel=0.1)
     assert fit.droop_rad == pytest.approx(-DROOP_RAD, rel=0.1)
     assert rms < 0.003
+
+
+def test_fit_recovers_known_servo_parameters_within_10_percent(excitation_log: Path) -> None:
+    fit, rms = fit_servo([load_log(excitation_log, SPEC.n_joints)], SPEC, fit_droop=True)
+    _assert_dynamics_recovered(fit, rms)
+    assert 0.0 <= fit.latency_s < 0.005  # only the sub-millisecond pty transport is left
+
+
+def test_fit_recovers_a_known_command_latency_within_10_percent(
+    latent_excitation_log: Path,
+) -> None:
+    fit, rms = fit_servo([load_log(latent_excitation_log, SPEC.n_joints)], SPEC, fit_droop=True)
+    assert fit.latency_s == pytest.approx(LATENCY_S, rel=0.1)
+    _assert_dynamics_recovered(fit, rms)
+
+
+def test_simulated_latency_is_continuous_below_the_integration_step() -> None:
+    """The fit's cost must have a slope in the latency: a fraction of the 1 ms integration step
+    moves the simulated readings by a proportional amount, not by 0 or a whole step."""
+    t_cmd = np.arange(0.0, 0.2, 0.01)
+    u = np.ones((len(t_cmd), 1))
+    t_read = np.array([0.05, 0.1])
+
+    def reading(latency_s: float) -> float:
+        fit = ServoFit(
+            time_constant_s=0.05, max_speed_rad_s=2.0, deadband_rad=0.0, latency_s=latency_s
+        )
+        return float(simulate(fit, t_cmd, u, t_read, np.zeros(1), np.zeros(1))[0, 0])
+
+    # speed-limited ramp: 2 rad/s, so 0.25 ms later start reads 0.5 mrad lower
+    steps = [reading(0.02) - reading(0.02 + d) for d in (0.00025, 0.0005, 0.00075)]
+    np.testing.assert_allclose(steps, [0.0005, 0.001, 0.0015], rtol=0.05)
 
 
 def test_model_reproduces_speed_limit_lag_and_deadband() -> None:
@@ -71,7 +117,9 @@ def test_model_reproduces_speed_limit_lag_and_deadband() -> None:
     assert np.all(y[:, 1] == 0.0)  # a 5 mrad command is inside the 10 mrad dead band
 
 
-def test_cli_writes_an_updated_spec_and_dr_centre(excitation_log: Path, tmp_path: Path) -> None:
+def test_cli_writes_an_updated_spec_and_dr_centre(
+    latent_excitation_log: Path, tmp_path: Path
+) -> None:
     out = tmp_path / "fitted.yaml"
     res = subprocess.run(
         [
@@ -79,9 +127,11 @@ def test_cli_writes_an_updated_spec_and_dr_centre(excitation_log: Path, tmp_path
             "-m",
             "sim2real",
             "sysid",
-            str(excitation_log),
+            str(latent_excitation_log),
             "--out",
             str(out),
+            "--control-hz",
+            "20",
             "--json",
         ],
         capture_output=True,
@@ -93,11 +143,22 @@ def test_cli_writes_an_updated_spec_and_dr_centre(excitation_log: Path, tmp_path
     fitted = ArmSpec.from_yaml(out)
     assert fitted.servo.time_constant_s == pytest.approx(summary["time_constant_s"], rel=1e-3)
     assert fitted.joints == SPEC.joints  # only the servo model changes
-    from sim2real.randomization import load_preset
+    from sim2real.randomization import actuation, load_preset
+    from sim2real.randomization.base import ModelIds
 
     preset = load_preset(Path(summary["dr_preset"]))
     db = preset["actuation"]["deadband_rad"]
     assert db.low < fitted.servo.deadband_rad < db.high
+    # the latency lands in the spec and, in 20 Hz control steps, in the DR preset: the env's
+    # rounded draws average to the fitted fraction of a step (40 ms = 0.8 steps)
+    assert fitted.servo.latency_s == pytest.approx(LATENCY_S, rel=0.1)
+    rng = np.random.default_rng(0)
+    ids = cast(ModelIds, None)  # the actuation draw uses no model ids
+    steps = np.array(
+        [actuation.sample(rng, preset["actuation"], ids)["latency_steps"] for _ in range(4000)]
+    )
+    assert set(np.unique(steps)) == {0, 1}
+    assert steps.mean() == pytest.approx(summary["latency_s"] * 20, abs=0.05)
 
 
 def test_bad_logs_are_named(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ from sim2real.export import load_policy
 from sim2real.train import ALGOS, RunDir, resume
 
 STEPS = 400
+REACH_OBS = envs.make("reach").observation_space.shape[0]  # type: ignore[index]
 Train = Callable[..., Path]
 
 
@@ -60,7 +61,7 @@ def test_each_algorithm_trains_saves_and_reloads(algo: str, run_dir: Path, tiny:
 
 
 def test_same_seed_same_actions_other_seed_differs(tmp_path: Path, tiny: Train) -> None:
-    obs = np.random.default_rng(0).normal(size=(16, 15)).astype(np.float32)
+    obs = np.random.default_rng(0).normal(size=(16, REACH_OBS)).astype(np.float32)
     acts = []
     for name, seed in (("a", 3), ("b", 3), ("c", 4)):
         tiny("td3", tmp_path / name, seed=seed, steps=200)
@@ -119,7 +120,7 @@ def test_pixel_env_trains_a_cnn_policy(run_dir: Path, tiny: Train) -> None:
 def test_subprocess_workers_train_the_same_policy_as_in_process_envs(
     tmp_path: Path, tiny: Train
 ) -> None:
-    obs = np.random.default_rng(1).normal(size=(8, 15)).astype(np.float32)
+    obs = np.random.default_rng(1).normal(size=(8, REACH_OBS)).astype(np.float32)
     tiny("ppo", tmp_path / "dummy", steps=128)
     tiny("ppo", tmp_path / "subproc", steps=128, extra=["vec_env=subproc"])
     cfg = RunDir(tmp_path / "subproc").read_config()
