@@ -346,6 +346,10 @@ class KukaGraspBase(gym.Env[np.ndarray, Any], ABC):
     physics behind a handful of hooks."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012
+    # Set by each twin's constructor.
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    slots: tuple[ko.Slot, ...]
 
     def __init__(
         self,
@@ -473,6 +477,15 @@ class KukaGraspBase(gym.Env[np.ndarray, Any], ABC):
             "distance_m": self._distance_m,
             "n_objects": len(self._live),
         }
+
+    def _write_objects(self, chosen: np.ndarray, obj: dict[str, Any]) -> None:
+        """Write the chosen catalog objects (with the episode's object DR) into the first slots;
+        ``mj_setConst`` then refits solver weights to the new masses (it rewinds qpos)."""
+        m = self.model
+        s, mass, mu = float(obj["size_scale"]), float(obj["mass_scale"]), float(obj["friction"])
+        for k, slot in enumerate(self.slots[: len(chosen)]):
+            ko.write_object(m, slot, self.catalog, int(chosen[k]), s, mass, mu)
+        mujoco.mj_setConst(m, self.data)
 
     # ---- hooks --------------------------------------------------------------------------------
     @abstractmethod
@@ -627,10 +640,7 @@ class KukaGraspFastEnv(KukaGraspBase):
         clear: bool,
     ) -> None:
         m, d = self.model, self.data
-        s, mass, mu = float(obj["size_scale"]), float(obj["mass_scale"]), float(obj["friction"])
-        for k, slot in enumerate(self.slots[: len(chosen)]):
-            ko.write_object(m, slot, self.catalog, int(chosen[k]), s, mass, mu)
-        mujoco.mj_setConst(m, d)  # solver weights follow the new masses (resets qpos: first)
+        self._write_objects(chosen, obj)  # first: it rewinds qpos
         mujoco.mj_resetDataKeyframe(m, d, self._key)
         d.qpos[self._gq] = self._target
         d.ctrl[:4] = self._target

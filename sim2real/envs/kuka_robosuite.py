@@ -382,10 +382,7 @@ class KukaGraspEnv(KukaGraspBase):
         clear: bool,
     ) -> None:
         m, d = self.model, self.data
-        s, mass, mu = float(obj["size_scale"]), float(obj["mass_scale"]), float(obj["friction"])
-        for k, slot in enumerate(self.slots[: len(chosen)]):
-            ko.write_object(m, slot, self.catalog, int(chosen[k]), s, mass, mu)
-        mujoco.mj_setConst(m, d)  # before robosuite's reset: it rewinds qpos
+        self._write_objects(chosen, obj)  # before robosuite's reset: it rewinds qpos
         # The arm starts exactly at the (jittered) start target, as the fast twin's gripper does.
         seed_qpos = d.qpos.copy()
         seed_qpos[self._qadr] = self._q_centre

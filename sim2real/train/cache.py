@@ -52,6 +52,8 @@ def _key(steps: int, seed: int, dr: str) -> str:
     from sim2real.train.runner import versions
 
     preset = find_preset("ppo", "Sim2Real/Arm3Reach-v0")
+    spec = load_spec()
+    n_joints = spec.n_joints  # reach: joint readings and actions, no gripper
     blob = json.dumps(
         {
             "steps": steps,
@@ -59,8 +61,8 @@ def _key(steps: int, seed: int, dr: str) -> str:
             "dr": dr,
             "preset": preset.read_text(),
             "overrides": QUICK_REACH_OVERRIDES,
-            "spec": load_spec().fingerprint(),
-            "obs_layout": [f.name for f in ReachTask().obs_fields(3, 3, False)],
+            "spec": spec.fingerprint(),
+            "obs_layout": [f.name for f in ReachTask().obs_fields(n_joints, n_joints, False)],
             "versions": versions(),
         },
         sort_keys=True,
