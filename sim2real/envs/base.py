@@ -51,6 +51,9 @@ REWARDS: dict[str, Callable[[Any, Any], Any]] = {
     "sparse": _sparse_reward,
 }
 OBS_MODES: tuple[str, ...] = ("state", "goal", "pixels")
+# ``reset(options={"start": ...})``: "default" is the task's own start; "held" (tasks that list
+# it in ``start_modes``) starts with the object already in the gripper, a training curriculum.
+START_DEFAULT, START_HELD = "default", "held"
 
 
 @dataclass(frozen=True)
@@ -71,10 +74,18 @@ class Task(ABC):
     success_threshold_m: ClassVar[float] = 0.01
     default_reward: ClassVar[str] = "distance"
     n_points: ClassVar[int] = 1  # rows of true_points()
+    start_modes: ClassVar[tuple[str, ...]] = (START_DEFAULT,)  # what reset's "start" accepts
 
     @abstractmethod
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
         """Place the task's objects (target, cube, path) for a new episode."""
+
+    def held_start(
+        self, env: Arm3Env, rng: np.random.Generator, height_m: float | None
+    ) -> np.ndarray:
+        """Put the arm at the object with it grasped (after ``reset``); returns the actuator
+        targets that hold it. Only tasks with ``START_HELD`` in ``start_modes`` have one."""
+        raise ConfigError(f"task {self.name!r} has no {START_HELD!r} start")
 
     def after_step(self, env: Arm3Env) -> None:  # noqa: B027 - optional hook
         """Advance task state (a moving target) after physics."""
@@ -268,9 +279,12 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._prev_action = np.zeros(self._n_act)
         self._steps = 0
         self.task.reset(self, rng)
+        start, height_m = self._start_option(options)
+        if start == START_HELD:
+            self._start_held(rng, height_m)
         mujoco.mj_forward(self.model, self.data)
         obs = self._observe()
-        info = {"dr": self.dr_params, "is_success": self.task.is_success(self)}
+        info = {"dr": self.dr_params, "is_success": self.task.is_success(self), "start": start}
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
@@ -309,6 +323,30 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._pixel_renderer = self._frame_renderer = None
 
     # ---- helpers ---------------------------------------------------------------------------
+    def _start_option(self, options: dict[str, Any] | None) -> tuple[str, float | None]:
+        """``options["start"]`` (default "default") and ``options["held_height_m"]`` (None:
+        the task samples one), validated against what this task offers."""
+        opts = options or {}
+        start = str(opts.get("start", START_DEFAULT))
+        if start not in self.task.start_modes:
+            raise UnknownNameError(
+                f"start for task {self.task.name!r}", start, self.task.start_modes
+            )
+        height = opts.get("held_height_m")
+        return start, None if height is None else float(height)
+
+    def _start_held(self, rng: np.random.Generator, height_m: float | None) -> None:
+        """The task grasps its object with real contacts; then the command side (targets, the
+        servo model's lag state, the last action) is made to match, so the first observation
+        reads as if the policy had been holding: joint deltas 0, gripper closed (-1)."""
+        targets = self.task.held_start(self, rng, height_m)
+        self._targets = np.array(targets, dtype=float)
+        self.actuation.reset(self._targets[: self.spec_arm.n_joints])
+        self._write_ctrl(self._targets[: self.spec_arm.n_joints])
+        self._prev_action = np.zeros(self._n_act)
+        if self.task.uses_gripper:
+            self._prev_action[-1] = -1.0  # the absolute gripper action that commands "closed"
+
     def restore_nominal(self) -> None:
         """Put every randomised model parameter back to its nominal, bit for bit."""
         self.randomizer.restore_nominal()

@@ -41,6 +41,7 @@ PRESET_KEYS: tuple[str, ...] = (
     "log_interval",
     "save_replay",
     "action_rate_penalty",
+    "start_curriculum",
     "max_wall_s",
 )
 # SB3 constructor arguments the trainer sets itself.
@@ -88,6 +89,7 @@ class TrainConfig:
     log_interval: int = 1
     save_replay: bool = True
     action_rate_penalty: float = 0.0  # training-only reward shaping, see wrappers.py
+    start_curriculum: Mapping[str, Any] | None = None  # training-only resets, see wrappers.py
     max_wall_s: float = 0.0  # stop (and save) after this much wall time; 0 = no limit
     spec_path: str | None = None
     preset: str = ""
@@ -152,6 +154,9 @@ class TrainConfig:
             raise ConfigError(
                 "action_rate_penalty cannot be used with --her (HER recomputes rewards)"
             )
+        if self.start_curriculum is not None:
+            _check_start_curriculum(self.env_id, self.start_curriculum)
+            object.__setattr__(self, "start_curriculum", dict(self.start_curriculum))
         _check_hyperparams(algo.name, self.hyperparams)
         _check_env_kwargs(self.env_id, self.env_kwargs)
         object.__setattr__(
@@ -185,6 +190,9 @@ class TrainConfig:
             "log_interval": self.log_interval,
             "save_replay": self.save_replay,
             "action_rate_penalty": self.action_rate_penalty,
+            "start_curriculum": None
+            if self.start_curriculum is None
+            else dict(self.start_curriculum),
             "max_wall_s": self.max_wall_s,
             "spec_path": self.spec_path,
             "preset": self.preset,
@@ -226,6 +234,32 @@ def is_goal_env(env_id: str) -> bool:
     return entry.kwargs.get("obs_mode") == "goal"
 
 
+def _check_start_curriculum(env_id: str, sc: Any) -> None:
+    """``{held_prob: p}``, p in [0, 1], on an env whose task has a held start (pick)."""
+    import sim2real.envs as envs
+    from sim2real.envs.base import START_HELD
+    from sim2real.train.wrappers import START_CURRICULUM_KEYS
+
+    if not isinstance(sc, Mapping):
+        raise ConfigError(f"start_curriculum must be a mapping like {{held_prob: 0.5}}, got {sc!r}")
+    unknown = sorted(set(sc) - set(START_CURRICULUM_KEYS))
+    if unknown:
+        raise ConfigError(
+            f"start_curriculum: unknown key(s) {unknown}; valid: {list(START_CURRICULUM_KEYS)}"
+        )
+    p = sc.get("held_prob", 0.0)
+    if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
+        raise ConfigError(f"start_curriculum.held_prob must be in [0, 1], got {p!r}")
+    entry = next(e for e in envs.ENV_TABLE if e.id == env_id)
+    task = envs.TASKS.get(str(entry.kwargs.get("task")))
+    arm_env = entry.entry_point in (envs.ENTRY_POINT, envs.GOAL_ENTRY_POINT)
+    if not arm_env or task is None or START_HELD not in task.start_modes:
+        raise ConfigError(
+            f"start_curriculum: {env_id} has no {START_HELD!r} start (only tasks that grasp an "
+            "object, e.g. Sim2Real/Arm3Pick-v0)"
+        )
+
+
 def _check_hyperparams(algo: str, hp: Mapping[str, Any]) -> None:
     cls = _algos()[algo].cls
     params = set(inspect.signature(cls.__init__).parameters) - {"self", "kwargs"}
@@ -253,6 +287,11 @@ def _check_hyperparams(algo: str, hp: Mapping[str, Any]) -> None:
 
         if act not in ACTIVATIONS:
             raise UnknownNameError("activation_fn", str(act), ACTIVATIONS)
+    extractor = (hp.get("policy_kwargs") or {}).get("features_extractor")
+    if extractor is not None:
+        from sim2real.train.extractors import get_extractor
+
+        get_extractor(str(extractor))
 
 
 def _check_env_kwargs(env_id: str, kw: Mapping[str, Any]) -> None:
@@ -421,6 +460,7 @@ def resolve_config(
         log_interval=data.get("log_interval", 1),
         save_replay=_as_bool("save_replay", data.get("save_replay", True)),
         action_rate_penalty=data.get("action_rate_penalty", 0.0),
+        start_curriculum=data.get("start_curriculum"),
         max_wall_s=data.get("max_wall_s", 0.0) if max_wall_s is None else max_wall_s,
         spec_path=spec_path,
         preset=path.stem if path.parent == PRESET_DIR else str(path),

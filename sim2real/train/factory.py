@@ -33,11 +33,16 @@ def make_env(
     action_table: np.ndarray | None = None,
     monitor_path: str | None = None,
     action_rate_penalty: float = 0.0,
+    start_curriculum: Mapping[str, Any] | None = None,
 ) -> gym.Env[Any, Any]:
     """One env as training sees it (module-level, so subprocess workers can pickle it)."""
     import sim2real.envs as envs
 
     env: gym.Env[Any, Any] = envs.make(env_id, **dict(env_kwargs))
+    if start_curriculum:
+        from sim2real.train.wrappers import StartCurriculum
+
+        env = StartCurriculum(env, start_curriculum.get("held_prob", 0.0))
     if action_rate_penalty > 0:
         from sim2real.train.wrappers import ActionRatePenalty
 
@@ -59,6 +64,7 @@ def build_vec_env(
     action_table: np.ndarray | None = None,
     monitor_prefix: str | None = None,
     action_rate_penalty: float = 0.0,
+    start_curriculum: Mapping[str, Any] | None = None,
 ) -> VecEnv:
     """``len(seeds)`` envs; env i resets first with ``seeds[i]`` (seeds must be consecutive)."""
     fns: list[Callable[[], gym.Env[Any, Any]]] = [
@@ -69,6 +75,7 @@ def build_vec_env(
             action_table,
             None if monitor_prefix is None else f"{monitor_prefix}.{i}",
             action_rate_penalty,
+            None if start_curriculum is None else dict(start_curriculum),
         )
         for i in range(len(seeds))
     ]

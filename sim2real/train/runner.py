@@ -47,6 +47,7 @@ from sim2real.train.config import (
     TrainConfig,
     check_action_space,
 )
+from sim2real.train.extractors import resolve_policy_kwargs
 from sim2real.train.factory import build_vec_env, obs_normalization, policy_for, transpose_images
 from sim2real.train.rundir import FORMAT_VERSION, Checkpoint, RunDir
 from sim2real.train.wrappers import delta_action_table
@@ -167,6 +168,7 @@ def _hyperparams(cfg: TrainConfig, algo: AlgoSpec, n_actions: int) -> dict[str, 
     pk = dict(hp.get("policy_kwargs") or {})
     if "activation_fn" in pk:
         pk["activation_fn"] = ACTIVATIONS[pk["activation_fn"]]
+    pk = resolve_policy_kwargs(pk)
     if pk:
         hp["policy_kwargs"] = pk
     if cfg.action_noise is not None:
@@ -228,6 +230,7 @@ class _Session:
                 self.table,
                 str(self.rd.monitor_dir / f"seg{self.segment}"),
                 self.cfg.action_rate_penalty,
+                self.cfg.start_curriculum,
             )
         )
         if vecnormalize is not None:
