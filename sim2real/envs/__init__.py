@@ -30,6 +30,9 @@ class EnvEntry:
     entry_point: str = ENTRY_POINT
     doc: str = ""
     discrete_actions: bool = False  # the env's own action space is Discrete (no wrapper needed)
+    # Short name of another env whose tuned presets this one uses when it has none of its own:
+    # the robosuite Kuka twin trains with the fast twin's, so a ranking check changes one thing.
+    presets_from: str | None = None
 
 
 ENV_TABLE: list[EnvEntry] = [
@@ -106,6 +109,7 @@ ENV_TABLE: list[EnvEntry] = [
         entry_point=KUKA_ROBOSUITE_ENTRY_POINT,
         doc="grasp from 48x48 RGB, 7 discrete actions, robosuite IIWA",
         discrete_actions=True,
+        presets_from="kuka-fast",
     ),
     EnvEntry(
         "Sim2Real/KukaGraspCont-v0",

@@ -319,15 +319,17 @@ def preset_names() -> list[str]:
 
 
 def preset_candidates(algo: str, env_id: str) -> list[str]:
-    """Names tried in order: the exact env, the env's task (only for variants that share its
-    observation and reward: a goal, pixel or sparse variant needs its own), the algorithm's
-    default."""
+    """Names tried in order: the exact env, the env it shares presets with (``presets_from``),
+    the env's task (only for variants that share its observation and reward: a goal, pixel or
+    sparse variant needs its own), the algorithm's default."""
     import sim2real.envs as envs
 
     entry = next(e for e in envs.ENV_TABLE if e.id == envs.resolve_env_id(env_id))
     short = entry.short.replace("-", "_")
     task = str(entry.kwargs.get("task", short))
     names = [f"{algo}_{short}"]
+    if entry.presets_from:
+        names.append(f"{algo}_{entry.presets_from.replace('-', '_')}")
     if set(entry.kwargs) <= {"task"}:
         names.append(f"{algo}_{task}")
     names.append(f"{algo}_default")

@@ -42,6 +42,10 @@ def test_preset_lookup_prefers_env_then_task_then_default() -> None:
     assert find_preset("sac", "pick-goal").name == "sac_pick_goal.yaml"
     assert find_preset("sac", "reach-goal").name == "sac_default.yaml"  # not the dense preset
     assert find_preset("ppo", "reach-pixels").name == "ppo_default.yaml"
+    # The robosuite Kuka twin shares the fast twin's tuned presets; its continuous variant not.
+    assert find_preset("dqn", "kuka-fast").name == "dqn_kuka_fast.yaml"
+    assert find_preset("dqn", "Sim2Real/KukaGrasp-v0").name == "dqn_kuka_fast.yaml"
+    assert find_preset("ppo", "kuka-cont").name == "ppo_default.yaml"
 
 
 def test_overrides_reach_any_field_and_default_to_hyperparams() -> None:
