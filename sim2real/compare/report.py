@@ -70,6 +70,14 @@ def _plt() -> Any:
     return plt
 
 
+def _steps_axis(ax: Any) -> None:
+    """Env steps in k/M: raw 6-digit tick labels run into each other on a 4-inch panel."""
+    from matplotlib.ticker import EngFormatter
+
+    ax.xaxis.set_major_formatter(EngFormatter(sep=""))
+    ax.set_xlabel("env steps")
+
+
 def _save(fig: Any, path: Path) -> Path:
     atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=100, bbox_inches="tight"))
     _plt().close(fig)
@@ -88,7 +96,7 @@ def plot_learning(jobs: Sequence[Mapping[str, Any]], path: Path, title: str) -> 
                 lo, hi = list(np.clip(lo, 0.0, 1.0)), list(np.clip(hi, 0.0, 1.0))
             (line,) = ax.plot(x, mean, label=f"{algo} ({len(js)} seeds)")
             ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, linewidth=0)
-            ax.set_xlabel("env steps")
+            _steps_axis(ax)
             ax.set_ylabel(label)
     axes[0].set_ylim(-0.02, 1.02)
     axes[0].legend(loc="best")
@@ -126,14 +134,16 @@ def plot_diagnostics(jobs: Sequence[Mapping[str, Any]], algo: str, path: Path) -
     plt = _plt()
     cols = min(3, len(keys))
     rows = math.ceil(len(keys) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.3 * rows), squeeze=False)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(5 * cols, 3.3 * rows), squeeze=False, layout="constrained"
+    )
     x = js[0]["curves"]["bin_centres"]
     for ax, key in zip(axes.flat, keys, strict=False):
         mean, lo, hi = _band([j["curves"]["diagnostics"][key] for j in js])
         ax.plot(x, mean)
         ax.fill_between(x, lo, hi, alpha=0.25, linewidth=0)
         ax.set_title(key)
-        ax.set_xlabel("env steps")
+        _steps_axis(ax)
     for ax in list(axes.flat)[len(keys) :]:
         ax.axis("off")
     fig.suptitle(f"{algo} diagnostics — mean and 95% interval across seeds")
@@ -144,6 +154,23 @@ def _pct(x: float) -> str:
     return "n/a" if not math.isfinite(x) else f"{100 * x:.1f}%"
 
 
+def _relative(path: str, out: Path) -> str:
+    """``path`` relative to the report folder when inside it: a report is committed and moved
+    as a folder, so it must not name the machine it ran on."""
+    try:
+        return Path(path).resolve().relative_to(out.resolve()).as_posix()
+    except ValueError:
+        return path
+
+
+def _portable(job: Mapping[str, Any], out: Path) -> dict[str, Any]:
+    j = dict(job)
+    j["run_dir"] = _relative(str(j["run_dir"]), out)
+    if isinstance(j.get("eval"), Mapping) and "policy" in j["eval"]:
+        j["eval"] = {**j["eval"], "policy": _relative(str(j["eval"]["policy"]), out)}
+    return j
+
+
 def write_report(
     out: Path,
     config: Mapping[str, Any],
@@ -151,6 +178,7 @@ def write_report(
     versions: Mapping[str, str],
 ) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
+    jobs = [_portable(j, out) for j in jobs]
     summary = summarise(jobs)
     title = f"{config['env_id']}, DR {config['dr']}, {config['steps']} steps"
     files: dict[str, Path] = {

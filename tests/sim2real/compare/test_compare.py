@@ -68,6 +68,9 @@ def test_local_backend_writes_every_file(tmp_path: Path) -> None:
     ]
     for job in results["jobs"]:
         assert job["eval"]["episodes"] == 4 and job["steps"] >= 128
+        # Paths inside the report folder are relative: the folder can be committed and moved.
+        assert job["run_dir"] == f"runs/{job['algo']}-s{job['seed']}"
+        assert job["eval"]["policy"] == job["run_dir"] and (out / job["run_dir"]).is_dir()
         assert len(job["curves"]["learning"]["success_rate"]) == 30
     diag = results["jobs"][0]["curves"]["diagnostics"]  # dqn seed 0
     assert set(diag) == {"rollout/exploration_rate", "train/q_mean", "train/loss"}
