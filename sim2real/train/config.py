@@ -242,11 +242,7 @@ def _check_start_curriculum(env_id: str, sc: Any) -> None:
 
     if not isinstance(sc, Mapping):
         raise ConfigError(f"start_curriculum must be a mapping like {{held_prob: 0.5}}, got {sc!r}")
-    unknown = sorted(set(sc) - set(START_CURRICULUM_KEYS))
-    if unknown:
-        raise ConfigError(
-            f"start_curriculum: unknown key(s) {unknown}; valid: {list(START_CURRICULUM_KEYS)}"
-        )
+    _reject_unknown_keys(sc, START_CURRICULUM_KEYS, "start_curriculum")
     p = sc.get("held_prob", 0.0)
     if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
         raise ConfigError(f"start_curriculum.held_prob must be in [0, 1], got {p!r}")
@@ -363,12 +359,14 @@ def read_preset(path: Path) -> dict[str, Any]:
         ) from None
     if not isinstance(data, dict):
         raise ConfigError(f"preset {str(path)!r} must be a mapping")
-    unknown = sorted(set(data) - set(PRESET_KEYS))
-    if unknown:
-        raise ConfigError(
-            f"preset {str(path)!r}: unknown key(s) {unknown}; valid: {list(PRESET_KEYS)}"
-        )
+    _reject_unknown_keys(data, PRESET_KEYS, f"preset {str(path)!r}")
     return data
+
+
+def _reject_unknown_keys(data: Mapping[str, Any], valid: Sequence[str], what: str) -> None:
+    unknown = sorted(set(data) - set(valid))
+    if unknown:
+        raise ConfigError(f"{what}: unknown key(s) {unknown}; valid: {list(valid)}")
 
 
 def apply_overrides(preset: Mapping[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
