@@ -238,14 +238,12 @@ def _check_start_curriculum(env_id: str, sc: Any) -> None:
     """``{held_prob: p}``, p in [0, 1], on an env whose task has a held start (pick)."""
     import sim2real.envs as envs
     from sim2real.envs.base import START_HELD
-    from sim2real.train.wrappers import START_CURRICULUM_KEYS
+    from sim2real.train.wrappers import START_CURRICULUM_KEYS, check_held_prob
 
     if not isinstance(sc, Mapping):
         raise ConfigError(f"start_curriculum must be a mapping like {{held_prob: 0.5}}, got {sc!r}")
     _reject_unknown_keys(sc, START_CURRICULUM_KEYS, "start_curriculum")
-    p = sc.get("held_prob", 0.0)
-    if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
-        raise ConfigError(f"start_curriculum.held_prob must be in [0, 1], got {p!r}")
+    check_held_prob(sc.get("held_prob", 0.0))
     entry = next(e for e in envs.ENV_TABLE if e.id == env_id)
     task = envs.TASKS.get(str(entry.kwargs.get("task")))
     arm_env = entry.entry_point in (envs.ENTRY_POINT, envs.GOAL_ENTRY_POINT)

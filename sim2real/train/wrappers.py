@@ -96,6 +96,14 @@ class ActionRatePenalty(gym.Wrapper[Any, Any, Any, Any]):
 START_CURRICULUM_KEYS: tuple[str, ...] = ("held_prob",)
 
 
+def check_held_prob(p: Any) -> float:
+    """The one check of ``start_curriculum.held_prob``: the config (before anything is written)
+    and the wrapper (built directly) share it."""
+    if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
+        raise ConfigError(f"start_curriculum.held_prob must be in [0, 1], got {p!r}")
+    return float(p)
+
+
 class StartCurriculum(gym.Wrapper[Any, Any, Any, Any]):
     """Training-only reset curriculum: with probability ``held_prob`` an episode starts with the
     object already grasped (``reset(options={"start": "held"})``), otherwise as the task starts.
@@ -110,19 +118,14 @@ class StartCurriculum(gym.Wrapper[Any, Any, Any, Any]):
 
     def __init__(self, env: gym.Env[Any, Any], held_prob: float) -> None:
         super().__init__(env)
-        if (
-            isinstance(held_prob, bool)
-            or not isinstance(held_prob, int | float)
-            or not 0.0 <= held_prob <= 1.0
-        ):
-            raise ConfigError(f"start_curriculum.held_prob must be in [0, 1], got {held_prob!r}")
+        held_prob = check_held_prob(held_prob)
         from sim2real.envs.base import START_HELD
 
         task = getattr(env.unwrapped, "task", None)
         if START_HELD not in getattr(task, "start_modes", ()):
             name = getattr(task, "name", type(env.unwrapped).__name__)
             raise ConfigError(f"start_curriculum: task {name!r} has no {START_HELD!r} start")
-        self.held_prob = float(held_prob)
+        self.held_prob = held_prob
         self._start_held = START_HELD
         self._rng = np.random.default_rng(0)
 
