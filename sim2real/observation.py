@@ -79,6 +79,28 @@ class ObservationBuilder:
         return {name: np.asarray(obs)[..., sl] for name, sl in self._slices}
 
 
+def command_readings(
+    spec: ArmSpec, joint_targets_rad: np.ndarray, goal_m: np.ndarray | None
+) -> dict[str, np.ndarray]:
+    """Where the last command will put the tool, by the spec's forward kinematics.
+
+    A Smith-predictor feature: the camera's ``goal_delta`` arrives after the servo and camera
+    delays, but ``goal − fk(joint_target)`` is known the moment the command is sent, so a policy
+    that steers on it does not oscillate when the loop is slower than in training.
+    """
+    ee_m = spec.forward_kinematics(joint_targets_rad[: spec.n_joints])
+    out = {"target_ee_pos": ee_m}
+    if goal_m is not None:
+        out["target_goal_delta"] = goal_m - ee_m
+    return out
+
+
+COMMAND_FIELDS = (
+    ObsField("target_ee_pos", 3, "m", "forward kinematics of joint_target, base frame"),
+    ObsField("target_goal_delta", 3, "m", "desired goal minus target_ee_pos"),
+)
+
+
 @dataclass(frozen=True)
 class ActionDecoder:
     """Normalised action in [-1, 1] → actuator targets (rad).

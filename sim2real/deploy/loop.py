@@ -24,7 +24,7 @@ import numpy as np
 from hardware.arm import ArmBase, ArmState
 from hardware.errors import HardwareError
 from sim2real.errors import ConfigError
-from sim2real.observation import ActionDecoder, ObservationBuilder
+from sim2real.observation import ActionDecoder, ObservationBuilder, command_readings
 
 log = logging.getLogger(__name__)
 
@@ -250,6 +250,7 @@ class DeployLoop:
                                 "goal_pos": percept.goal_m,
                                 "goal_delta": percept.goal_m - percept.ee_m,
                                 "prev_action": prev_action,
+                                **command_readings(self.decoder.spec, targets, percept.goal_m),
                             }
                         )
                         action = np.asarray(self.policy(obs), dtype=float)

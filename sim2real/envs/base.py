@@ -21,7 +21,13 @@ import numpy as np
 from hardware.spec import ArmSpec, load_spec
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.model import ArmTwin, RigSpec, build_model
-from sim2real.observation import ActionDecoder, ObservationBuilder, ObsField
+from sim2real.observation import (
+    COMMAND_FIELDS,
+    ActionDecoder,
+    ObservationBuilder,
+    ObsField,
+    command_readings,
+)
 from sim2real.randomization import DomainRandomizer, ModelIds, load_preset
 from sim2real.randomization.actuation import ServoActuation
 from sim2real.randomization.config import DRConfig
@@ -75,6 +81,9 @@ class Task(ABC):
     default_reward: ClassVar[str] = "distance"
     n_points: ClassVar[int] = 1  # rows of true_points()
     start_modes: ClassVar[tuple[str, ...]] = (START_DEFAULT,)  # what reset's "start" accepts
+    # Observe the commanded pose too (``COMMAND_FIELDS``): opt-in, so that a task's tuned presets
+    # and measured figures stay valid until it is re-measured with them.
+    command_fields: ClassVar[bool] = False
 
     @abstractmethod
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
@@ -120,6 +129,8 @@ class Task(ABC):
         fields.append(
             ObsField("joint_target", n_joint_readings, "rad", "last commanded joint targets")
         )
+        if self.command_fields:
+            fields += COMMAND_FIELDS[:1] if goal_conditioned else COMMAND_FIELDS
         fields.append(ObsField("prev_action", n_actions, "1", "last normalised action"))
         return tuple(fields)
 
@@ -402,6 +413,8 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             "prev_action": self._prev_action,
             **self.task.extra_readings(self, sensed),
         }
+        if self.task.command_fields:
+            readings.update(command_readings(self.spec_arm, self._targets, desired))
         vec = self.builder.build(readings)
         if self.obs_mode == "goal":
             return {

@@ -17,6 +17,9 @@ if TYPE_CHECKING:
 class ReachTask(Task):
     name = "reach"
     scene = "reach"
+    command_fields = (
+        True  # steering on the commanded pose survives unseen latency (docs/training.md)
+    )
 
     def __init__(self) -> None:
         self.target_m = np.zeros(3)

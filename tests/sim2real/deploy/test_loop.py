@@ -42,6 +42,12 @@ def test_sim_backend_reaches_targets_and_logs_every_period(
     assert result.successes == 3, result.final_distances_m
     data = np.load(log)
     assert data["obs"].shape == (150, builder.size)
+    # The loop observes the commanded pose exactly as the env does (the same contract fields).
+    for obs in data["obs"][::10]:
+        f = builder.split(obs)
+        fk = spec.forward_kinematics(f["joint_target"])
+        np.testing.assert_allclose(f["target_ee_pos"], fk, atol=1e-5)
+        np.testing.assert_allclose(f["target_goal_delta"], f["goal_pos"] - fk, atol=1e-5)
     same_episode = np.diff(data["episode"]) == 0
     steps = np.abs(np.diff(data["sent_rad"], axis=0))[same_episode]
     assert np.all(steps <= spec.safety.max_step_rad + 1e-9)

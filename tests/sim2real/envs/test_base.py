@@ -29,3 +29,34 @@ def test_joint_target_integrates_the_decoded_actions_and_leads_a_lagging_servo()
     np.testing.assert_allclose(f["joint_pos"], start, atol=0.01)  # only settling under gravity
     assert np.abs(f["joint_target"] - f["joint_pos"]).max() > 0.09
     env.close()
+
+
+def test_reach_observes_where_its_command_will_put_the_tool_before_the_servo_gets_there() -> None:
+    dr = DRConfig.from_dict("lag2", {"actuation": {"latency_steps": [2, 2]}})
+    env = envs.make("reach", dr=dr, max_delta_rad=0.05)
+    u = env.unwrapped
+    obs, _ = env.reset(seed=5)
+    f = _fields(env, obs)
+    # At rest the commanded pose is the pose (within servo sag and quantisation).
+    np.testing.assert_allclose(f["target_ee_pos"], u.ee_position(), atol=0.005)
+    action = np.array([1.0, -1.0, 1.0], dtype=np.float32)
+    for _ in range(2):
+        obs, *_ = env.step(action)
+    f = _fields(env, obs)
+    expected = u.spec_arm.forward_kinematics(f["joint_target"])
+    np.testing.assert_allclose(f["target_ee_pos"], expected, atol=1e-6)
+    np.testing.assert_allclose(f["target_goal_delta"], f["goal_pos"] - expected, atol=1e-6)
+    # Two steps of latency: the camera still sees the old pose, the command already moved >1.5 cm.
+    assert np.linalg.norm(f["target_ee_pos"] - f["ee_pos"]) > 0.015
+    for _ in range(15):  # hold the command: the servo catches up with it
+        obs, *_ = env.step(np.zeros(3, dtype=np.float32))
+    np.testing.assert_allclose(u.ee_position(), expected, atol=0.006)
+    env.close()
+
+
+def test_goal_conditioned_reach_carries_the_commanded_pose_but_no_goal_delta() -> None:
+    names = [f.name for f in envs.make("Sim2Real/Arm3ReachGoal-v0").unwrapped.builder.layout()]
+    assert "target_ee_pos" in names and "target_goal_delta" not in names
+    assert "target_ee_pos" not in [
+        f.name for f in envs.make("pick").unwrapped.builder.layout()
+    ]  # opt-in: pick's measured preset predates it
