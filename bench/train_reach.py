@@ -10,7 +10,7 @@ Each finished run's figures are stored in --results-dir; the summary lines aggre
 run made with the same presets, so seeds can be run in separate invocations (CPU etiquette) and
 still be reported together. Prints JSON lines (one object per line, "metric" key first).
 
-    .venv/bin/python bench/train_reach.py                        # the full figure (~70 min)
+    .venv/bin/python bench/train_reach.py                        # the full figure (~50 min)
     .venv/bin/python bench/train_reach.py --algos ppo --seeds 0  # one run, adds to the summary
 """
 
@@ -30,9 +30,12 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+import gymnasium as gym
 import numpy as np
 import torch
+import yaml
 
+import sim2real.envs  # noqa: F401  (registers the env ids)
 from sim2real.evaluate import EvalTarget, evaluate
 from sim2real.train import resolve_config, train
 from sim2real.train.config import find_preset
@@ -49,7 +52,14 @@ def emit(metric: str, value: float, unit: str, **extra: Any) -> None:
 
 
 def preset_hash(algo: str) -> str:
-    return hashlib.sha256(find_preset(algo, ENV).read_bytes()).hexdigest()[:10]
+    """What makes runs comparable: the preset's values (not its comments) and the observation
+    layout the policy is trained on. Runs with another hash are left out of the summary."""
+    values = yaml.safe_load(find_preset(algo, ENV).read_text())
+    env = gym.make(ENV)
+    layout = [f.name for f in env.unwrapped.builder.layout()]  # type: ignore[attr-defined]
+    env.close()
+    blob = json.dumps({"preset": values, "obs_layout": layout}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:10]
 
 
 def one_run(

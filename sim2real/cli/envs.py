@@ -75,9 +75,10 @@ def run(args: argparse.Namespace) -> int:
                 if key != "layout":
                     print(f"{key:24s} {value}")
             print("observation layout (obs_mode=state/goal 'observation'):")
+            width = max((len(f["name"]) for f in layout), default=0)
             for f in layout:
                 lo, hi = f["slice"]
-                print(f"  [{lo:2d}:{hi:2d}] {f['name']:12s} {f['unit']:4s} {f['doc']}")
+                print(f"  [{lo:2d}:{hi:2d}] {f['name']:{width}s} {f['unit']:4s} {f['doc']}")
         return 0 if np.isfinite(rate) else 1
     finally:
         env.close()

@@ -17,9 +17,8 @@ if TYPE_CHECKING:
 class ReachTask(Task):
     name = "reach"
     scene = "reach"
-    command_fields = (
-        True  # steering on the commanded pose survives unseen latency (docs/training.md)
-    )
+    # Steering on the commanded pose survives latency unseen in training (docs/training.md).
+    command_fields = True
 
     def __init__(self) -> None:
         self.target_m = np.zeros(3)

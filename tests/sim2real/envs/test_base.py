@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+from typing import Any
+
+import gymnasium as gym
 import numpy as np
 
 import sim2real.envs as envs
 from sim2real.randomization.config import DRConfig
 
 
-def _fields(env: object, obs: np.ndarray) -> dict[str, np.ndarray]:
-    return env.unwrapped.builder.split(obs)  # type: ignore[attr-defined,no-any-return]
+def _base(env: gym.Env[Any, Any]) -> envs.Arm3Env:
+    u = env.unwrapped
+    assert isinstance(u, envs.Arm3Env)
+    return u
+
+
+def _fields(env: gym.Env[Any, Any], obs: np.ndarray) -> dict[str, np.ndarray]:
+    return _base(env).builder.split(obs)
 
 
 def test_joint_target_integrates_the_decoded_actions_and_leads_a_lagging_servo() -> None:
@@ -34,7 +43,7 @@ def test_joint_target_integrates_the_decoded_actions_and_leads_a_lagging_servo()
 def test_reach_observes_where_its_command_will_put_the_tool_before_the_servo_gets_there() -> None:
     dr = DRConfig.from_dict("lag2", {"actuation": {"latency_steps": [2, 2]}})
     env = envs.make("reach", dr=dr, max_delta_rad=0.05)
-    u = env.unwrapped
+    u = _base(env)
     obs, _ = env.reset(seed=5)
     f = _fields(env, obs)
     # At rest the commanded pose is the pose (within servo sag and quantisation).
@@ -55,8 +64,17 @@ def test_reach_observes_where_its_command_will_put_the_tool_before_the_servo_get
 
 
 def test_goal_conditioned_reach_carries_the_commanded_pose_but_no_goal_delta() -> None:
-    names = [f.name for f in envs.make("Sim2Real/Arm3ReachGoal-v0").unwrapped.builder.layout()]
+    # HER relabels desired_goal, so the "observation" part must not depend on the goal.
+    env = envs.make("Sim2Real/Arm3ReachGoal-v0")
+    u = _base(env)
+    names = [f.name for f in u.builder.layout()]
     assert "target_ee_pos" in names and "target_goal_delta" not in names
-    assert "target_ee_pos" not in [
-        f.name for f in envs.make("pick").unwrapped.builder.layout()
-    ]  # opt-in: pick's measured preset predates it
+    env.reset(seed=3)
+    obs, *_ = env.step(np.array([1.0, -1.0, 1.0], dtype=np.float32))
+    f = _fields(env, obs["observation"])
+    fk = u.spec_arm.forward_kinematics(f["joint_target"])
+    np.testing.assert_allclose(f["target_ee_pos"], fk, atol=1e-6)
+    env.close()
+    pick = envs.make("pick")
+    assert "target_ee_pos" not in [f.name for f in _base(pick).builder.layout()]  # opt-in
+    pick.close()
