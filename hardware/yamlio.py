@@ -43,11 +43,18 @@ _PLAIN_SAFE = re.compile(r"^[A-Za-z_/.][A-Za-z0-9_ ./+()-]*$")
 
 
 def _strip_comment(text: str) -> str:
-    """Drop a trailing ``# comment`` that is outside quotes."""
+    """Drop a trailing ``# comment`` that is outside quotes (``\\"`` does not close a
+    double-quoted string; ``''`` inside a single-quoted one closes and reopens it, which is the
+    same)."""
     quote = ""
+    escaped = False
     for i, ch in enumerate(text):
         if quote:
-            if ch == quote:
+            if escaped:
+                escaped = False
+            elif quote == '"' and ch == "\\":
+                escaped = True
+            elif ch == quote:
                 quote = ""
         elif ch in "'\"":
             quote = ch

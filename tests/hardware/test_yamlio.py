@@ -46,6 +46,14 @@ def test_pyyaml_reads_what_yamlio_writes(data: dict[str, Any]) -> None:
     assert yamlio.loads(text) == data
 
 
+@pytest.mark.parametrize("value", ['" #', '"0 #', ['" #'], 'a\\" # b', "it''s # x"])
+def test_an_escaped_quote_does_not_end_a_string_before_a_hash(value: Any) -> None:
+    # Found by the property test above: ``"\" #"`` was cut at " #" as if it were a comment.
+    text = yamlio.dumps({"_": value})
+    assert yaml.safe_load(text) == {"_": value}
+    assert yamlio.loads(text) == {"_": value}
+
+
 @settings(max_examples=120, deadline=None)
 @given(data=mapping)
 def test_yamlio_reads_what_pyyaml_writes(data: dict[str, Any]) -> None:
