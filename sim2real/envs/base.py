@@ -413,8 +413,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             "prev_action": self._prev_action,
             **self.task.extra_readings(self, sensed),
         }
-        if self.task.command_fields:
-            readings.update(command_readings(self.spec_arm, self._targets, desired))
+        if self.task.command_fields:  # the goal env's layout has no target_goal_delta
+            goal = None if self.obs_mode == "goal" else desired
+            readings.update(command_readings(self.spec_arm, self._targets, goal))
         vec = self.builder.build(readings)
         if self.obs_mode == "goal":
             return {
