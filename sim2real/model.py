@@ -246,7 +246,7 @@ def build_mjcf(
     """The MJCF text of the arm in a scene with the stereo rig.
 
     ``markers=True`` adds ArUco plates (on the target and on the wrist) whose textures
-    ``sim2real.deploy.virtual_cameras.install_marker_textures`` fills in after compilation.
+    ``sim2real.deploy.marker_textures.install_marker_textures`` fills in after compilation.
     """
     if scene not in SCENES:
         raise UnknownNameError("scene", scene, SCENES)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import cv2
 import mujoco
 import numpy as np
 
@@ -19,29 +18,18 @@ from calibration.camera import CameraModel
 from calibration.triangulate import StereoRig
 from hardware.spec import ArmSpec
 from sim2real import model as names
+from sim2real.deploy.marker_textures import install_marker_textures, marker_image
 from sim2real.model import ArmTwin, RigSpec, build_model
 from sim2real.rendering import FastRenderer
 
-
-def marker_image(marker_id: int, side_px: int = names.MARKER_TEXTURE_PX) -> np.ndarray:
-    """(side, side) uint8: the ArUco marker (black square = MARKER_FILL of the side), white margin."""
-    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, names.MARKER_DICTIONARY))
-    inner = round(side_px * names.MARKER_FILL)
-    img = cv2.aruco.generateImageMarker(dictionary, marker_id, inner, borderBits=1)
-    pad = side_px - inner
-    return cv2.copyMakeBorder(
-        img, pad // 2, pad - pad // 2, pad // 2, pad - pad // 2, cv2.BORDER_CONSTANT, value=(255,)
-    )
-
-
-def install_marker_textures(model: mujoco.MjModel) -> None:
-    """Write the ArUco images into the flat ``aruco_<id>`` textures (before any renderer exists)."""
-    for marker_id in (names.TARGET_MARKER_ID, names.EE_MARKER_ID):
-        tex = model.texture(f"aruco_{marker_id}")
-        h, w, c = int(tex.height[0]), int(tex.width[0]), int(tex.nchannel[0])
-        img = np.repeat(marker_image(marker_id, w)[:, :, None], c, axis=2)
-        adr = int(tex.adr[0])
-        model.tex_data[adr : adr + h * w * c] = img.ravel()
+__all__ = [
+    "StereoFrames",
+    "VirtualStereoCameras",
+    "install_marker_textures",
+    "marker_image",
+    "stereo_rig_of",
+    "target_quat_facing",
+]
 
 
 def stereo_rig_of(rig: RigSpec) -> tuple[StereoRig, np.ndarray]:
