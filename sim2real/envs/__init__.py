@@ -1,22 +1,45 @@
 """Registered environment ids (Gymnasium string entry points); importing registers them.
 
-Each id is a (task, kwargs) row in ``ENV_TABLE``; ``sim2real envs`` prints it.
+Each id is a (task, kwargs) row in ``ENV_TABLE``; ``sim2real envs`` prints it. Registration is
+cheap: ``import sim2real`` registers every id without importing MuJoCo, torch or robosuite. The
+task classes (``Arm3Env``, ``TASKS``, ...) load on first use, through ``__getattr__`` below, and
+the arm envs' entry points name them here (``sim2real.envs:Arm3Env``) so that making one also
+imports the task modules that register themselves.
 """
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 from gymnasium.envs.registration import WrapperSpec
 
-from sim2real.envs import pick, reach, trace  # noqa: F401  (modules register their tasks)
-from sim2real.envs.base import REWARDS, TASKS, Arm3Env, Arm3GoalEnv, Task, register_task
 from sim2real.errors import UnknownNameError
 
-ENTRY_POINT = "sim2real.envs.base:Arm3Env"
-GOAL_ENTRY_POINT = "sim2real.envs.base:Arm3GoalEnv"
+if TYPE_CHECKING:
+    from sim2real.envs.base import REWARDS, TASKS, Arm3Env, Arm3GoalEnv, Task, register_task
+
+# Loaded on first access: the task modules import MuJoCo.
+_LAZY_FROM_BASE = ("REWARDS", "TASKS", "Arm3Env", "Arm3GoalEnv", "Task", "register_task")
+# The built-in tasks register themselves when their module is imported.
+_TASK_MODULES = ("pick", "reach", "trace")
+
+
+def __getattr__(name: str) -> Any:
+    """PEP 562: ``sim2real.envs.Arm3Env`` (and the gym entry points) import the tasks lazily."""
+    if name in _LAZY_FROM_BASE:
+        for module in _TASK_MODULES:
+            importlib.import_module(f"{__name__}.{module}")
+        value = getattr(importlib.import_module(f"{__name__}.base"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+ENTRY_POINT = "sim2real.envs:Arm3Env"
+GOAL_ENTRY_POINT = "sim2real.envs:Arm3GoalEnv"
 ROBOSUITE_ENTRY_POINT = "sim2real.envs.robosuite_env:RobosuiteEnv"
 KUKA_FAST_ENTRY_POINT = "sim2real.envs.kuka_grasp:KukaGraspFastEnv"
 KUKA_ROBOSUITE_ENTRY_POINT = "sim2real.envs.kuka_robosuite:KukaGraspEnv"
