@@ -69,6 +69,7 @@ class Sensed:
     joints_rad: np.ndarray  # (n_actuators_used,)
     ee_m: np.ndarray  # (3,)
     points_m: np.ndarray  # (k, 3) task points (target, cube, ...)
+    blind_s: np.ndarray  # (k,) time since each task point was last seen (0: seen now)
 
 
 class Task(ABC):
@@ -84,6 +85,9 @@ class Task(ABC):
     # Observe the commanded pose too (``COMMAND_FIELDS``): opt-in, so that a task's tuned presets
     # and measured figures stay valid until it is re-measured with them.
     command_fields: ClassVar[bool] = False
+    # The gripper can hide the task points (a cube in its fingers): the sensor model drops them
+    # out near the tool and reports how long they have been blind (``Sensed.blind_s``).
+    occludable: ClassVar[bool] = False
 
     @abstractmethod
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
@@ -264,6 +268,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._steps = 0
         self.dr_params: dict[str, Any] = {}
         self._points_buf = np.zeros((1 + self.task.n_points, 3))
+        self._not_blind = np.zeros(self.task.n_points)
 
     # ---- gymnasium API ---------------------------------------------------------------------
     def reset(
@@ -395,9 +400,14 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         pts[0] = self.data.site_xpos[self._tool_site]
         pts[1:] = self.task.true_points(self)
         joints, est = self.sensors.read(q, pts, rng)
+        blind = self._not_blind
+        if self.task.occludable:
+            held, blind_steps = self.sensors.occlude(est[1:], pts[0], pts[1:], rng)
+            est = np.concatenate([est[:1], held])
+            blind = blind_steps * self.control_dt_s
         if self.sensors.delay_steps:
-            joints, est = self.sensors.delay(joints, est)
-        return Sensed(joints, est[0], est[1:])
+            joints, est, blind = self.sensors.delay(joints, est, blind)
+        return Sensed(joints, est[0], est[1:], blind)
 
     def _observe(self) -> Any:
         if self.obs_mode == "pixels":

@@ -25,6 +25,23 @@ LIFT_WEIGHT_PER_M = 10.0  # per step while grasped: +10·(cube height gained), a
 HELD_RAMP_STEPS = 20
 HELD_SETTLE_STEPS = 20
 HELD_RAMP_SQUEEZE_M = 0.004  # finger command below the cube face at the ramp's end (force-capped)
+BLIND_CAP_S = 2.0  # the cube_blind_s reading saturates here: longer is "not seen this episode"
+
+
+def cube_readings(ee_m: np.ndarray, cube_m: np.ndarray, blind_s: float) -> dict[str, np.ndarray]:
+    """The pick-specific readings, from the env's sensor models and from the deploy loop's
+    cube tracker alike: the cube estimate (held at its last sighting while hidden), its offset
+    from the tool and how long it has been blind."""
+    return {
+        "cube_pos": cube_m,
+        "cube_delta": cube_m - ee_m,
+        "cube_blind_s": np.array([min(max(float(blind_s), 0.0), BLIND_CAP_S)]),
+    }
+
+
+def lift_goal(cube_rest_m: np.ndarray) -> np.ndarray:
+    """The lift point above where the cube rests (success: the cube within 2 cm of it)."""
+    return np.asarray(cube_rest_m, dtype=float) + (0.0, 0.0, LIFT_M)
 
 
 @register_task
@@ -34,6 +51,8 @@ class PickTask(Task):
     uses_gripper = True
     success_threshold_m = 0.02
     start_modes = (START_DEFAULT, START_HELD)
+    occludable = True  # the fingers hide the cube's markers during a grasp
+    command_fields = True
 
     def __init__(self) -> None:
         self.goal_m = np.zeros(3)
@@ -59,7 +78,7 @@ class PickTask(Task):
         q[a : a + 3] = (xy[0], xy[1], half)
         q[a + 3 : a + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         self.rest_z_m = half
-        self.goal_m = np.array([xy[0], xy[1], half + LIFT_M])
+        self.goal_m = lift_goal(np.array([xy[0], xy[1], half]))
         env.data.mocap_pos[0] = self.goal_m
         mujoco.mj_forward(m, env.data)
 
@@ -124,11 +143,13 @@ class PickTask(Task):
         return (
             ObsField("cube_pos", 3, "m", "cube position estimate, base frame"),
             ObsField("cube_delta", 3, "m", "cube minus end effector"),
+            ObsField(
+                "cube_blind_s", 1, "s", f"time since the cube was last seen (cap {BLIND_CAP_S})"
+            ),
         )
 
     def extra_readings(self, env: Arm3Env, sensed: Sensed) -> dict[str, np.ndarray]:
-        cube = sensed.points_m[0]
-        return {"cube_pos": cube, "cube_delta": cube - sensed.ee_m}
+        return cube_readings(sensed.ee_m, sensed.points_m[0], float(sensed.blind_s[0]))
 
     def is_grasped(self, env: Arm3Env) -> bool:
         """Both fingers touch the cube (from MuJoCo's contact list)."""

@@ -24,6 +24,8 @@ class TraceTask(Task):
     name = "trace"
     scene = "trace"
     success_threshold_m = SUCCESS_MEAN_ERROR_M
+    # Steering on the commanded pose keeps a tracker stable under camera and servo lag (reach).
+    command_fields = True
 
     def __init__(self) -> None:
         self.start_m = np.zeros(3)

@@ -37,6 +37,9 @@ NEUTRAL: dict[str, dict[str, tuple[float, float]]] = {
         "stereo_pixel_noise_px": (0.0, 0.0),
         "position_bias_m": (0.0, 0.0),
         "obs_delay_steps": (0.0, 0.0),
+        "point_dropout_prob": (0.0, 0.0),
+        "occlusion_radius_m": (0.0, 0.0),
+        "occlusion_prob": (0.0, 0.0),
     },
     "visual": {
         "light_diffuse_scale": (1.0, 1.0),
@@ -53,7 +56,16 @@ NEUTRAL: dict[str, dict[str, tuple[float, float]]] = {
     },
 }
 CATEGORY_NAMES: tuple[str, ...] = tuple(NEUTRAL)
-_NON_NEGATIVE_SUFFIXES = ("_scale", "_steps", "noise_rad", "noise_px", "_jitter_m", "deadband_rad")
+_NON_NEGATIVE_SUFFIXES = (
+    "_scale",
+    "_steps",
+    "noise_rad",
+    "noise_px",
+    "_jitter_m",
+    "deadband_rad",
+    "_prob",
+    "radius_m",
+)
 
 
 @dataclass(frozen=True)
@@ -101,6 +113,11 @@ class DRConfig:
                 if key.endswith(_NON_NEGATIVE_SUFFIXES) and rng.low < 0:
                     raise ConfigError(
                         f"DR preset {self.name!r}: {cat}.{key} low {rng.low} must be >= 0"
+                    )
+                if key.endswith("_prob") and rng.high > 1.0:
+                    raise ConfigError(
+                        f"DR preset {self.name!r}: {cat}.{key} high {rng.high} must be <= 1 "
+                        "(a probability)"
                     )
         unknown_cats = sorted(set(self.ranges) - set(NEUTRAL))
         if unknown_cats:

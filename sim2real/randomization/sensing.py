@@ -3,6 +3,13 @@
 Stereo error is anisotropic: for a point at depth Z, lateral σ = Z·σ_px/f and depth
 σ_z = Z²·σ_d/(f·B) with disparity noise σ_d = √2·σ_px (NOTES: 1.3–2.2 mm at 0.5 m for 0.2 px).
 The noise is drawn in the camera frame and rotated into the base frame.
+
+Objects the gripper can hide (the pick cube) also drop out: hidden when the tool is within
+``occlusion_radius_m`` of them (with probability ``occlusion_prob`` per period: the fingers and
+the palm cover its markers during a grasp, which is the normal case) or at random
+(``point_dropout_prob``: glare, motion blur). A hidden object's estimate holds its last value, as
+the deploy loop's still-object Kalman tracker coasts, and the time since it was last seen is
+reported: what ``calibration.cube.StereoCubeTracker`` gives the deploy loop.
 """
 
 from __future__ import annotations
@@ -27,6 +34,9 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
         "stereo_pixel_noise_px": float(ranges["stereo_pixel_noise_px"].sample(rng)),
         "position_bias_m": ranges["position_bias_m"].sample(rng, 3),
         "obs_delay_steps": round(float(ranges["obs_delay_steps"].sample(rng))),
+        "point_dropout_prob": float(ranges["point_dropout_prob"].sample(rng)),
+        "occlusion_radius_m": float(ranges["occlusion_radius_m"].sample(rng)),
+        "occlusion_prob": float(ranges["occlusion_prob"].sample(rng)),
     }
 
 
@@ -57,10 +67,15 @@ class SensorModel:
                 "stereo_pixel_noise_px": 0.0,
                 "position_bias_m": np.zeros(3),
                 "obs_delay_steps": 0,
+                "point_dropout_prob": 0.0,
+                "occlusion_radius_m": 0.0,
+                "occlusion_prob": 0.0,
             }
         )
         self._history: deque[tuple[np.ndarray, ...]] = deque()
         self._noise: NoiseBuffer | None = None
+        self._last_seen: np.ndarray | None = None
+        self._blind_steps = np.zeros(0)
 
     def configure(self, params: Params) -> None:
         self.joint_noise = float(params["joint_noise_rad"])
@@ -70,6 +85,9 @@ class SensorModel:
         self.px_noise = float(params["stereo_pixel_noise_px"])
         self.pos_bias = np.asarray(params["position_bias_m"], dtype=float)
         self.delay_steps = int(params["obs_delay_steps"])
+        self.dropout_prob = float(params.get("point_dropout_prob", 0.0))
+        self.occlusion_radius_m = float(params.get("occlusion_radius_m", 0.0))
+        self.occlusion_prob = float(params.get("occlusion_prob", 0.0))
         px = self.px_noise
         self._sigma_coef = np.array(
             [px / self._f, px / self._f, np.sqrt(2.0) * px / (self._f * self._B)]
@@ -124,6 +142,27 @@ class SensorModel:
             points += (z[n:].reshape(k, 3) * scale) @ self._R.T
         return joints, points
 
+    def occlude(
+        self,
+        estimates_m: np.ndarray,
+        true_tool_m: np.ndarray,
+        true_points_m: np.ndarray,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Estimates (k, 3) with hidden objects held at their last seen estimate, and the number
+        of periods (k,) since each was last seen. The first call after ``reset`` always sees."""
+        k = len(estimates_m)
+        if self._last_seen is None or len(self._last_seen) != k:
+            self._last_seen = np.array(estimates_m, dtype=float)
+            self._blind_steps = np.zeros(k)
+            return self._last_seen.copy(), self._blind_steps.copy()
+        u = rng.random((2, k))
+        near = np.linalg.norm(true_points_m - true_tool_m, axis=1) < self.occlusion_radius_m
+        hidden = (near & (u[0] < self.occlusion_prob)) | (u[1] < self.dropout_prob)
+        self._last_seen[~hidden] = estimates_m[~hidden]
+        self._blind_steps = np.where(hidden, self._blind_steps + 1, 0.0)
+        return self._last_seen.copy(), self._blind_steps.copy()
+
     def delay(self, *readings: np.ndarray) -> tuple[np.ndarray, ...]:
         """Observation delay: returns the readings from ``delay_steps`` calls ago."""
         if self.delay_steps == 0:
@@ -133,5 +172,6 @@ class SensorModel:
 
     def reset(self) -> None:
         self._history.clear()
+        self._last_seen = None
         if self._noise is not None:
             self._noise.clear()

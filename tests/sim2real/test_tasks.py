@@ -50,7 +50,7 @@ def test_scripted_grasp_lifts_the_cube_and_a_scripted_miss_does_not() -> None:
     env = gym.make("Sim2Real/Arm3Pick-v0", dr="default")
     u = env.unwrapped
     wins = 0
-    for seed in range(4):
+    for seed in range(8):  # DR default: a low-friction cube sometimes slips from a scripted grasp
         env.reset(seed=seed)
         cube = u.task.cube_position(u).copy()
         _drive_to(env, cube + [0, 0, 0.06], 10, grip=1.0)
@@ -63,7 +63,7 @@ def test_scripted_grasp_lifts_the_cube_and_a_scripted_miss_does_not() -> None:
         lifted = u.task.cube_position(u)[2] - cube[2]
         wins += out[4]["is_success"]
         assert out[4]["is_success"] == (lifted >= 0.05)
-    assert wins >= 3
+    assert wins >= 5
     # The miss: the same motion with the gripper left open leaves the cube on the table.
     env.reset(seed=0)
     cube = u.task.cube_position(u).copy()
@@ -150,12 +150,12 @@ def test_a_scripted_lift_from_a_held_start_succeeds_and_letting_go_does_not() ->
     env = gym.make("Sim2Real/Arm3Pick-v0", dr="default")
     u = env.unwrapped
     wins = 0
-    for seed in range(4):
+    for seed in range(8):  # DR default: a low-friction cube sometimes slips from a scripted grasp
         _held(env, seed, 0.0)
         cube = u.task.cube_position(u).copy()
         out = _drive_to(env, cube + [0, 0, 0.09], 22, grip=-1.0)
         wins += out[4]["is_success"] and u.task.is_grasped(u)
-    assert wins >= 3
+    assert wins >= 5
     _held(env, 0, 0.0)
     cube = u.task.cube_position(u).copy()
     out = _drive_to(env, cube + [0, 0, 0.09], 22, grip=1.0)  # the gripper opens: no lift

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 import sim2real.envs as envs
+from sim2real.envs.base import Task
 from sim2real.randomization.config import DRConfig
 
 
@@ -75,6 +76,8 @@ def test_goal_conditioned_reach_carries_the_commanded_pose_but_no_goal_delta() -
     fk = u.spec_arm.forward_kinematics(f["joint_target"])
     np.testing.assert_allclose(f["target_ee_pos"], fk, atol=1e-6)
     env.close()
-    pick = envs.make("pick")
-    assert "target_ee_pos" not in [f.name for f in _base(pick).builder.layout()]  # opt-in
+    pick = envs.make("pick")  # opted in: both fields, its goal is the lift point
+    names = [f.name for f in _base(pick).builder.layout()]
+    assert {"target_ee_pos", "target_goal_delta"} <= set(names)
     pick.close()
+    assert not Task.command_fields  # a new task opts in

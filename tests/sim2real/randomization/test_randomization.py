@@ -87,6 +87,9 @@ def test_shifted_lies_outside_the_default_ranges() -> None:
             s = shifted[cat][key]
             if s.high > r.high or s.low < r.low:
                 outside += 1
+            elif key.endswith("_prob") and r.high == 1.0:
+                assert s.low == 1.0, key  # a probability already at 1 can only be pinned there
+                outside += 1
     # Every axis that default randomises is pushed out, except fixed servo resolution.
     randomised = sum(
         1 for keys in default.ranges.values() for r in keys.values() if not r.is_neutral_point
@@ -99,7 +102,18 @@ def test_every_range_key_has_a_unit_and_a_comment_in_default_yaml() -> None:
     for cat, keys in NEUTRAL.items():
         for key in keys:
             assert key.endswith(
-                ("_scale", "_nm", "_rad", "_px", "_m", "_steps", "_deg", "jitter", "friction")
+                (
+                    "_scale",
+                    "_nm",
+                    "_rad",
+                    "_px",
+                    "_m",
+                    "_steps",
+                    "_deg",
+                    "jitter",
+                    "friction",
+                    "_prob",
+                )
             ), key
             line = next(line for line in text if line.strip().startswith(f"{key}:"))
             assert "#" in line, f"{cat}.{key} has no provenance comment"
