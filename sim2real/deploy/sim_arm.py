@@ -18,9 +18,9 @@ import numpy as np
 
 from hardware.arm import ArmBase, ArmState
 from hardware.spec import ArmSpec
+from sim2real.actuation import ServoActuation
 from sim2real.errors import UnknownNameError
 from sim2real.model import ArmTwin, RigSpec, build_model
-from sim2real.randomization.actuation import ServoActuation
 
 CLOCKS = ("lockstep", "realtime")
 

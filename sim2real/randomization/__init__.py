@@ -9,14 +9,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import mujoco
 import numpy as np
 
 from sim2real.randomization import actuation, dynamics, sensing, visual
 from sim2real.randomization import object as object_dr
-from sim2real.randomization.base import ModelIds, ModelSnapshot
+from sim2real.randomization.base import ModelIds, ModelSnapshot, Params
 from sim2real.randomization.config import (
     CATEGORY_NAMES,
     DRConfig,
@@ -25,7 +24,6 @@ from sim2real.randomization.config import (
     preset_names,
 )
 
-Params = dict[str, Any]
 Sampler = Callable[[np.random.Generator, Mapping[str, Range], ModelIds], Params]
 Applier = Callable[[mujoco.MjModel, ModelSnapshot, ModelIds, Params], None]
 

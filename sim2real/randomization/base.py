@@ -4,11 +4,19 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from sim2real import model as names
+from sim2real.noise import NoiseBuffer
+
+# One category's sampled parameters (key -> value): what ``sample`` returns and ``apply`` takes.
+# The one alias for it: every DR module imports this.
+Params = dict[str, Any]
+
+__all__ = ["ModelIds", "ModelSnapshot", "NoiseBuffer", "Params"]  # NoiseBuffer: sensing.py
 
 # Every MjModel field any DR category writes. restore() copies exactly these back.
 TOUCHED_FIELDS: tuple[str, ...] = (
@@ -87,26 +95,3 @@ class ModelSnapshot:
     def restore(self) -> None:
         for field, value in self.values.items():
             np.copyto(getattr(self._model, field), value)
-
-
-class NoiseBuffer:
-    """Standard-normal draws in blocks: one RNG call per ``block`` steps instead of per step
-    (a per-step call costs more than the arithmetic it feeds). ``clear`` at episode reset keeps
-    same-seed rollouts identical."""
-
-    def __init__(self, dim: int, block: int = 64) -> None:
-        self.dim, self.block = dim, block
-        self._buf = np.zeros((0, dim))
-        self._i = 0
-
-    def clear(self) -> None:
-        self._buf = np.zeros((0, self.dim))
-        self._i = 0
-
-    def take(self, rng: np.random.Generator) -> np.ndarray:
-        if self._i >= len(self._buf):
-            self._buf = rng.standard_normal((self.block, self.dim))
-            self._i = 0
-        row = self._buf[self._i]
-        self._i += 1
-        return row

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
 
 import mujoco
 import numpy as np
 
-from sim2real.randomization.base import ModelIds, ModelSnapshot
+from sim2real.randomization.base import ModelIds, ModelSnapshot, Params
 from sim2real.randomization.config import Range
-
-Params = dict[str, Any]
 
 
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:

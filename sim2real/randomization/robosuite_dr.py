@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from sim2real.errors import ConfigError
-from sim2real.randomization import CATEGORIES, ModelIds, ModelSnapshot
+from sim2real.randomization import CATEGORIES, ModelIds, ModelSnapshot, Params
 from sim2real.randomization import object as object_dr
 from sim2real.randomization.config import DRConfig
 from sim2real.randomization.robosuite_compat import import_robosuite
@@ -44,8 +44,6 @@ from robosuite.utils.mjmod import (  # noqa: E402  (after the quiet import)
     DynamicsModder,
     LightingModder,
 )
-
-Params = dict[str, Any]
 
 # MuJoCo draws a geom in its material's colour while the geom rgba is at this default.
 _DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)

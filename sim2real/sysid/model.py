@@ -1,4 +1,7 @@
-"""The servo model sysid fits: the same physics the emulator and the env's actuation layer use.
+"""The servo model sysid fits: ``hardware.servo_model.ServoBank``, the one servo model, in
+continuous time (the emulator runs the same). ``simulate`` integrates it with a compiled kernel
+because a fit calls it thousands of times; ``simulate_reference`` runs the model itself, and a test
+holds the two equal.
 
 Per actuator: the command takes effect ``latency_s`` after it was sent; the horn moves towards
 ``target + droop`` with a first-order lag ``time_constant_s``, no faster than
@@ -23,6 +26,7 @@ from dataclasses import asdict, dataclass
 import numba
 import numpy as np
 
+from hardware.servo_model import ServoBank, ServoParams
 from sim2real.errors import ConfigError
 
 SIM_DT_S = 0.001  # integration step of the fit's simulation
@@ -117,9 +121,8 @@ def simulate(
 
     Command k acts from ``t_cmd_s[k] + latency_s`` on, to the sub-step; readings are linearly
     interpolated between integration steps."""
-    t0 = min(t_cmd_s[0], t_read_s[0])
-    t_end = max(t_cmd_s[-1], t_read_s[-1]) + 2 * SIM_DT_S
-    grid = np.arange(t0, t_end, SIM_DT_S)
+    grid = _grid(t_cmd_s, t_read_s)
+    t0 = float(grid[0])
     switch_s = np.asarray(t_cmd_s, dtype=np.float64) + fit.latency_s
     # Which command is in force at the end of each step (after the latency): -1 = none yet,
     # and for how much of the step it has been.
@@ -138,7 +141,50 @@ def simulate(
         fit.max_speed_rad_s,
         fit.deadband_rad,
     )
-    pos = np.clip((np.asarray(t_read_s) - t0) / SIM_DT_S, 0.0, len(grid) - 1.0)
-    i0 = np.minimum(pos.astype(np.int64), len(grid) - 2)
+    return _read_at(out, t0, t_read_s)
+
+
+def _grid(t_cmd_s: np.ndarray, t_read_s: np.ndarray) -> np.ndarray:
+    """Integration step ends t_i; step i covers (t_i - SIM_DT_S, t_i]."""
+    t0 = min(t_cmd_s[0], t_read_s[0])
+    t_end = max(t_cmd_s[-1], t_read_s[-1]) + 2 * SIM_DT_S
+    return np.arange(t0, t_end, SIM_DT_S)
+
+
+def _read_at(out: np.ndarray, t0: float, t_read_s: np.ndarray) -> np.ndarray:
+    """Positions at the read times, linearly interpolated between integration steps."""
+    pos = np.clip((np.asarray(t_read_s) - t0) / SIM_DT_S, 0.0, len(out) - 1.0)
+    i0 = np.minimum(pos.astype(np.int64), len(out) - 2)
     f = (pos - i0)[:, None]
     return out[i0] * (1.0 - f) + out[i0 + 1] * f
+
+
+def simulate_reference(
+    fit: ServoFit,
+    t_cmd_s: np.ndarray,
+    u_rad: np.ndarray,
+    t_read_s: np.ndarray,
+    x0_rad: np.ndarray,
+    droop_mask: np.ndarray,
+) -> np.ndarray:
+    """``simulate`` by the one servo model, step by step in numpy: the definition the compiled
+    kernel must equal (slow: for tests). Nothing moves before the first command takes effect."""
+    grid = _grid(t_cmd_s, t_read_s)
+    n = len(x0_rad)
+    params = ServoParams(
+        max_speed_rad_s=np.full(n, fit.max_speed_rad_s),
+        time_constant_s=fit.time_constant_s,
+        deadband_rad=fit.deadband_rad,
+        resolution_rad=0.0,
+        droop_rad=fit.droop_rad * np.asarray(droop_mask, dtype=np.float64),
+        noise_rad=0.0,  # the latency is applied below, when the commands are queued
+    )
+    bank = ServoBank(params, np.asarray(x0_rad, dtype=np.float64))
+    for t_s, u in zip(t_cmd_s, np.asarray(u_rad, dtype=np.float64), strict=True):
+        bank.delay.push(float(t_s) + fit.latency_s, u)
+    powered = np.ones(n, dtype=bool)
+    out = np.empty((len(grid), n))
+    for i, t_s in enumerate(grid):
+        bank.run(float(t_s) - SIM_DT_S, float(t_s), powered)
+        out[i] = bank.pos
+    return _read_at(out, float(grid[0]), t_read_s)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hardware.spec import load_spec
-from sim2real.randomization.actuation import ServoActuation
+from sim2real.actuation import ServoActuation
 from sim2real.randomization.sensing import SensorModel
 
 SPEC = load_spec()
