@@ -38,6 +38,24 @@ def _frozen(a: np.ndarray | None) -> np.ndarray | None:
     return out
 
 
+def arrival_tolerance_rad(spec: ArmSpec) -> float:
+    """Where an arrived servo may sit: inside its dead band, plus one quantisation step of the
+    command and one of the reading. From the spec's servo figures (fitted ones after sysid)."""
+    return spec.servo.deadband_rad + 2.0 * spec.servo.resolution_rad
+
+
+def off_pose_limit_rad(spec: ArmSpec) -> float:
+    """How far short of a pose a stopped arm may be and still be used (with a warning): half a
+    safe step, so the first command from there is still an ordinary step of the safety clamp."""
+    return 0.5 * spec.safety.max_step_rad
+
+
+def settle_window_s(spec: ArmSpec) -> float:
+    """How long without progress means "stopped": five servo time constants after the servo's
+    latency (99 % of a first-order step), and never less than a quarter second."""
+    return max(0.25, spec.servo.latency_s + 5.0 * spec.servo.time_constant_s)
+
+
 @dataclass(frozen=True)
 class ArmState:
     """One reading of the arm, in ``spec.actuator_names`` order (joints, then gripper)."""
@@ -268,36 +286,77 @@ class ArmBase(ABC):
         self,
         target_rad: np.ndarray,
         *,
-        tolerance_rad: float = 0.05,
+        tolerance_rad: float | None = None,
         timeout_s: float = 10.0,
         rate_hz: float = 50.0,
     ) -> ArmState:
-        """Walk to ``target_rad`` through the per-step clamp at ``rate_hz``; return the state
-        once every actuator is within ``tolerance_rad``."""
+        """Walk to ``target_rad`` through the per-step clamp at ``rate_hz``; return the state once
+        every actuator is within ``tolerance_rad`` (default: ``arrival_tolerance_rad(spec)``,
+        from the servo figures, which sysid's fitted spec carries).
+
+        An arm that stops short (droop, a wider dead band than the spec says) but within
+        ``off_pose_limit_rad(spec)`` is warned about and returned: it works, a little off. One
+        that stops further away, or is still away at ``timeout_s``, is e-stopped (hold, then
+        torque off) and raises HardwareError."""
         if not self._enabled or self._estop_reason is not None:
             self.enable()
         target = self.safety.clip_to_limits(self.safety.check_shape(target_rad))
+        tol = arrival_tolerance_rad(self.spec) if tolerance_rad is None else float(tolerance_rad)
+        off_pose = max(off_pose_limit_rad(self.spec), tol)
+        window_s = settle_window_s(self.spec)
+        progress_rad = self.spec.servo.resolution_rad + 0.25 * tol  # less is noise, not motion
         period = 1.0 / rate_hz
-        deadline = time.monotonic() + timeout_s
-        next_t = time.monotonic()
+        start = time.monotonic()
+        deadline = start + timeout_s
+        next_t = start
         prev_sent: np.ndarray | None = None
+        best = np.full(self.spec.n_actuators, np.inf)
+        last_progress_t = start
         while True:
             sent = self.command(target)
             state = self.read_state()
+            now = time.monotonic()
             err = np.abs(state.positions_rad - target)
-            # done when the step clamp no longer moves the targets (they sit on the goal, up to
-            # quantisation) and every joint has arrived
-            settled = prev_sent is not None and np.array_equal(sent, prev_sent)
-            if settled and np.all(err <= tolerance_rad):
-                return state
+            worst = int(np.argmax(err))
+            name = self.spec.actuator_names[worst]
+            # the targets sit on the goal once the step clamp no longer moves them
+            settled_targets = prev_sent is not None and np.array_equal(sent, prev_sent)
             prev_sent = sent
-            if time.monotonic() > deadline:
-                worst = int(np.argmax(err))
-                raise HardwareError(
-                    f"did not reach the pose within {timeout_s:.1f} s: "
-                    f"{self.spec.actuator_names[worst]} is {err[worst]:.3f} rad away "
-                    f"(tolerance {tolerance_rad} rad)"
+            if not settled_targets:
+                best[:] = np.inf
+                last_progress_t = now
+            else:
+                if np.all(err <= tol):
+                    return state
+                improved = err < best - progress_rad  # against the last progress, so a slow
+                if np.any(improved):  # but moving arm adds up to progress within the window
+                    last_progress_t = now
+                best = np.where(improved, err, best)
+                if now - last_progress_t >= window_s:  # stopped moving, short of the pose
+                    if np.all(err <= off_pose):
+                        log.warning(
+                            "settled %.3f rad off the pose at %s (arrival tolerance %.4f rad): "
+                            "droop or a dead band the spec does not describe; `sim2real sysid` "
+                            "fits them",
+                            err[worst],
+                            name,
+                            tol,
+                        )
+                        return state
+                    reason = (
+                        f"did not reach the pose: {name} stopped {err[worst]:.3f} rad away "
+                        f"(arrival tolerance {tol:.4f} rad, accepted off the pose up to "
+                        f"{off_pose:.3f} rad); torque is off"
+                    )
+                    self.estop(reason)
+                    raise HardwareError(reason)
+            if now > deadline:
+                reason = (
+                    f"did not reach the pose within {timeout_s:.1f} s: {name} is "
+                    f"{err[worst]:.3f} rad away (tolerance {tol:.4f} rad); torque is off"
                 )
+                self.estop(reason)
+                raise HardwareError(reason)
             next_t += period
             time.sleep(max(0.0, next_t - time.monotonic()))
 

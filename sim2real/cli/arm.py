@@ -1,6 +1,7 @@
 """``sim2real arm``: talk to the servo arm (or its emulator) from a shell.
 
     sim2real arm emulate --protocol s2r --link /tmp/arm3        # mock hardware on a pty
+    sim2real arm emulate --plant hard --link /tmp/arm3          # ... of an arm that is off spec
     sim2real arm ping --port /tmp/arm3 --protocol s2r
     sim2real arm home --port /tmp/arm3 --protocol s2r
     sim2real arm jog --port /tmp/arm3 --protocol s2r            # "elbow +0.1", "home", "q"
@@ -138,6 +139,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--duration-s", type=float, default=None, help="stop after this long")
     p.add_argument("--log", default=None, help="write the applied-command log here (JSON lines)")
+    p.add_argument(
+        "--plant",
+        default=None,
+        help="emulate this plant (file or preset: mild, moderate, hard): the arm as it is",
+    )
     _add_spec(p)
 
     p = sub.add_parser("ping", help="check the device answers; print what it is and its state")
@@ -239,7 +245,19 @@ def _emulate(args: argparse.Namespace) -> int:
             seed=args.seed,
         ),
     )
-    emulator = Emulator(spec, args.protocol, config, mounting=mounting, link=args.link)
+    if args.plant is not None:
+        from hardware.plant import load_plant
+
+        if mounting is not None or args.droop_rad or args.noise_rad or args.command_latency_ms:
+            raise HardwareError(
+                "--plant carries droop, noise, command latency and joint offsets: give them in "
+                "the plant file, not as --droop-rad/--noise-rad/--command-latency-ms/--mounting-*"
+            )
+        plant = load_plant(args.plant)
+        plant.check_against(spec)
+        emulator = plant.emulator(args.protocol, config, link=args.link)
+    else:
+        emulator = Emulator(spec, args.protocol, config, mounting=mounting, link=args.link)
     stop = False
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
