@@ -529,7 +529,9 @@ class Emulator:
             self._log.clear()
 
     def true_positions_rad(self) -> np.ndarray:
-        """The servos' true joint angles (n_actuators,), for rendering and for tests."""
+        """The PHYSICAL joint angles (n_actuators,): where the links really are, for rendering
+        and for tests. With a plant's joint offsets (``hardware.plant``) the host reads
+        ``physical - offset``; a mock world renders these angles with the plant's links."""
         with self._lock:
             return self.servos.pos.copy()
 
