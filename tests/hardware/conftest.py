@@ -65,7 +65,11 @@ def firmware_build(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     bins = {
         "test_core": [FIRMWARE / "tests" / "test_core.cpp", *core],
         "replay": [FIRMWARE / "tests" / "replay.cpp", *core],
-        "test_sketch": [FIRMWARE / "tests" / "test_sketch.cpp", *core],
+        "test_sketch": [
+            FIRMWARE / "tests" / "test_sketch.cpp",
+            *core,
+            FIRMWARE / "src" / "servo_pulses.cpp",
+        ],
     }
     procs = {}
     for name, sources in bins.items():

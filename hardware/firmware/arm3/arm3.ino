@@ -7,10 +7,15 @@
 // Limits, step clamp, slew rate and watchdog timings come from src/limits.h, generated from the
 // ArmSpec by `sim2real arm gen-limits` -- regenerate and reflash whenever the spec changes.
 //
-// Servo driver: the Servo library on pins ARM3_SERVO_PIN (default), or a PCA9685 board on
-// channels ARM3_SERVO_CHANNEL when built with -DARM3_USE_PCA9685 (uncomment the define below).
+// Servo driver: Timer1 pulses on pins ARM3_SERVO_PIN (default; src/servo_pulses.h, no Servo
+// library needed, so Debian's Arduino packages build it), or a PCA9685 board on channels
+// ARM3_SERVO_CHANNEL when built with -DARM3_USE_PCA9685 (needs Adafruit's PWM servo library).
 // Power-up: servos stay detached (limp) until a TORQUE frame; they then hold the park pose, so
 // power the arm up resting in the park pose.
+//
+// Between loop() passes the CPU sleeps (idle mode) until the next interrupt: a UART byte, the
+// 1.024 ms millis() tick or a pulse edge. Nothing is late for it, and an emulator of the chip
+// (simavr) skips the sleep instead of simulating it.
 
 // #define ARM3_USE_PCA9685
 
@@ -25,8 +30,11 @@
 #include <Wire.h>
 static Adafruit_PWMServoDriver pca;
 #else
-#include <Servo.h>
-static Servo servos[ARM3_N_ACTUATORS];
+#include "src/servo_pulses.h"
+static arm3::ServoPulses pulses;
+#endif
+#if defined(__AVR__)
+#include <avr/sleep.h>
 #endif
 
 static const arm3::Limits kLimits = {
@@ -55,12 +63,7 @@ static void drive(uint8_t i, bool on, uint16_t pulse_us) {
     pca.setPWM(ARM3_SERVO_CHANNEL[i], 0, 4096);  // full off: no pulses, the servo goes limp
   }
 #else
-  if (on) {
-    servos[i].writeMicroseconds(pulse_us);  // before attach: no 1500 us glitch on attach
-    if (!servos[i].attached()) servos[i].attach(ARM3_SERVO_PIN[i], 500, 2500);
-  } else if (servos[i].attached()) {
-    servos[i].detach();
-  }
+  pulses.set(i, on, pulse_us);  // width and power change together: no glitch on attach
 #endif
   driven[i] = on;
 }
@@ -71,9 +74,27 @@ void setup() {
   pca.begin();
   pca.setOscillatorFrequency(27000000);
   pca.setPWMFreq(50);
+#else
+  pulses.begin(ARM3_SERVO_PIN, ARM3_N_ACTUATORS, ARM3_PARK_US);
 #endif
   for (uint8_t i = 0; i < ARM3_N_ACTUATORS; ++i) driven[i] = false;
   core.begin(next_boot_id(), millis());
+}
+
+// Sleep until the next interrupt unless a byte is already waiting (checked with interrupts off,
+// and sei() lets exactly one more instruction run, the sleep, so no wake-up is missed).
+static void idle() {
+#if defined(__AVR__)
+  set_sleep_mode(SLEEP_MODE_IDLE);
+  cli();
+  if (Serial.available() == 0) {
+    sleep_enable();
+    sei();
+    sleep_cpu();
+    sleep_disable();
+  }
+  sei();
+#endif
 }
 
 void loop() {
@@ -83,4 +104,5 @@ void loop() {
   core.tick(millis());
   const bool on = core.attached();
   for (uint8_t i = 0; i < ARM3_N_ACTUATORS; ++i) drive(i, on, core.output(i));
+  idle();
 }

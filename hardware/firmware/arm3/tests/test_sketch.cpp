@@ -1,5 +1,6 @@
 // Compiles arm3.ino against stub Arduino headers and runs setup()/loop(): the thin Arduino layer
-// must build, start detached, attach on TORQUE and write the core's pulses to the servos.
+// must build, start detached, attach on TORQUE and write the core's pulses to the servo pins
+// (src/servo_pulses.cpp records them on the host; on the chip Timer1 times them).
 #include <stdio.h>
 
 #include "Arduino.h"
@@ -35,20 +36,20 @@ static void send_frame(uint8_t seq, uint8_t type, const uint8_t* payload, uint8_
 int main() {
   setup();
   loop();
-  for (int i = 0; i < ARM3_N_ACTUATORS; ++i) CHECK(!servos[i].attached());
+  for (int i = 0; i < ARM3_N_ACTUATORS; ++i) CHECK(!pulses.on(i));
   const uint8_t on = 1;
   send_frame(1, arm3::kTorque, &on, 1);
   fake_now = 5;
   loop();
   CHECK(Serial.tx.size() == 8);  // the TORQUE ack
   for (int i = 0; i < ARM3_N_ACTUATORS; ++i) {
-    CHECK(servos[i].attached());
-    CHECK(servos[i].pin() == ARM3_SERVO_PIN[i]);
-    CHECK(servos[i].readMicroseconds() == ARM3_PARK_US[i]);
+    CHECK(pulses.on(i));
+    CHECK(pulses.pin(i) == ARM3_SERVO_PIN[i]);
+    CHECK(pulses.width_us(i) == ARM3_PARK_US[i]);
   }
   // No frames: after watchdog + hold the sketch detaches every servo.
   for (fake_now = 10; fake_now < 5 + ARM3_WATCHDOG_MS + ARM3_HOLD_MS + 10; fake_now += 5) loop();
-  for (int i = 0; i < ARM3_N_ACTUATORS; ++i) CHECK(!servos[i].attached());
+  for (int i = 0; i < ARM3_N_ACTUATORS; ++i) CHECK(!pulses.on(i));
   uint16_t boot = 0;
   EEPROM.get(0, boot);
   CHECK(boot == 1);
