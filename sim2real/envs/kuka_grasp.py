@@ -57,6 +57,24 @@ ACTION_MODES: tuple[str, ...] = ("discrete", "continuous")
 IMAGE_SIZES: tuple[int, ...] = (48, 64, 84, 96, 128)
 CAMERA = "tray_cam"
 MAX_SLOTS = 5  # objects per episode at most: the model has this many object slots
+# The privileged state: what the simulator knows and a camera does not. Training code reads it from
+# ``info[PRIVILEGED_INFO_KEY]`` (reset and step) for an asymmetric critic or a DAgger teacher; the
+# observation, and so every exported actor, never contains it. Positions are in units of
+# ``PRIVILEGED_SCALE_M`` (about [-2, 2] over the tray), so a critic MLP needs no normaliser.
+PRIVILEGED_INFO_KEY = "privileged_state"
+PRIVILEGED_SCALE_M = 0.1
+PRIVILEGED_FIELDS: tuple[str, ...] = (
+    "target_x",  # commanded gripper pose, tray frame, / PRIVILEGED_SCALE_M
+    "target_y",
+    "target_z",
+    "target_yaw_rad",
+    "episode_fraction",  # steps taken / max_episode_steps
+    *(
+        f"obj{k}_{f}"  # per slot: 1 if live, object centre minus target (xy) and height, scaled
+        for k in range(MAX_SLOTS)
+        for f in ("present", "dx", "dy", "z")
+    ),
+)
 IGNORED_DR_KEYS: dict[str, tuple[str, ...]] = {
     "actuation": ("deadband_rad", "quantisation_rad"),
     "sensing": (
@@ -190,6 +208,27 @@ class GraspActuation:
         if self.yaw_noise_rad > 0:
             out[2] += self.yaw_noise_rad * rng.standard_normal()
         return out
+
+
+def privileged_teacher_action(privileged: np.ndarray, xy_step_m: float = 0.015) -> int:
+    """The scripted servo as a pure function of the privileged state (a DAgger teacher): move along
+    the larger horizontal error to the live object nearest the target, or descend only when both
+    are within half a step. Yaw is left alone, as in the bench servo."""
+    p = np.asarray(privileged, dtype=np.float64).reshape(-1)
+    if p.shape != (len(PRIVILEGED_FIELDS),):
+        raise ConfigError(
+            f"privileged state has {p.size} values, expected {len(PRIVILEGED_FIELDS)}"
+        )
+    slots = p[5:].reshape(MAX_SLOTS, 4)
+    live = slots[slots[:, 0] > 0.5]
+    if len(live) == 0:
+        return 0
+    err = live[:, 1:3] * PRIVILEGED_SCALE_M
+    err = err[int(np.argmin(np.einsum("ij,ij->i", err, err)))]
+    if np.max(np.abs(err)) < 0.5 * xy_step_m:
+        return 0
+    axis = int(np.argmax(np.abs(err)))
+    return 1 + 2 * axis + int(err[axis] < 0)  # +x, -x, +y, -y are actions 1, 2, 3, 4
 
 
 def pixel_builder(image_size: int) -> ObservationBuilder:
@@ -383,6 +422,9 @@ class KukaGraspBase(gym.Env[np.ndarray, Any], ABC):
         )
         self.builder = pixel_builder(image_size)
         self.observation_space = gym.spaces.Box(0, 255, (image_size, image_size, 3), dtype=np.uint8)
+        self.privileged_space = gym.spaces.Box(
+            -np.inf, np.inf, (len(PRIVILEGED_FIELDS),), dtype=np.float32
+        )
         self.actuation = GraspActuation()
         self._image_size = image_size
         self._target = np.zeros(4)  # x, y, z, yaw of the gripper target (tray frame)
@@ -427,7 +469,9 @@ class KukaGraspBase(gym.Env[np.ndarray, Any], ABC):
         self._done = self._success = False
         self._distance_m = self.nearest_object_xy_m()
         self._obs = self._pixels()
-        return self._obs, {"dr": self.dr_params, "is_success": False}
+        info = {"dr": self.dr_params, "is_success": False}
+        info[PRIVILEGED_INFO_KEY] = self.privileged_state()
+        return self._obs, info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._done:  # past the end: nothing moves; the episode's outcome is repeated
@@ -471,11 +515,28 @@ class KukaGraspBase(gym.Env[np.ndarray, Any], ABC):
         """(4,) where the gripper is commanded to be: x, y, z, yaw (tray frame)."""
         return self._target.copy()
 
+    def privileged_state(self) -> np.ndarray:
+        """(len(PRIVILEGED_FIELDS),) float32, see ``PRIVILEGED_FIELDS``: the target pose, the
+        episode's progress and every slot's object relative to the target."""
+        out = np.zeros(len(PRIVILEGED_FIELDS), dtype=np.float32)
+        tgt = self._target
+        s = PRIVILEGED_SCALE_M
+        out[:4] = (tgt[0] / s, tgt[1] / s, tgt[2] / s, tgt[3])
+        out[4] = self._steps / self.max_episode_steps
+        pos = self.object_positions() if self._live else np.zeros((0, 3))
+        slots = out[5:].reshape(MAX_SLOTS, 4)
+        slots[: len(pos), 0] = 1.0
+        slots[: len(pos), 1] = (pos[:, 0] - tgt[0]) / s
+        slots[: len(pos), 2] = (pos[:, 1] - tgt[1]) / s
+        slots[: len(pos), 3] = pos[:, 2] / s
+        return out
+
     def _info(self) -> dict[str, Any]:
         return {
             "is_success": self._success,
             "distance_m": self._distance_m,
             "n_objects": len(self._live),
+            PRIVILEGED_INFO_KEY: self.privileged_state(),
         }
 
     def _write_objects(self, chosen: np.ndarray, obj: dict[str, Any]) -> None:
@@ -683,10 +744,13 @@ __all__ = [
     "CONTROL_DT_S",
     "DISCRETE_ACTIONS",
     "IGNORED_DR_KEYS",
+    "PRIVILEGED_FIELDS",
+    "PRIVILEGED_INFO_KEY",
     "GraspActionDecoder",
     "GraspTask",
     "KukaGraspBase",
     "KukaGraspFastEnv",
     "action_space_for",
     "build_fast_mjcf",
+    "privileged_teacher_action",
 ]

@@ -18,7 +18,8 @@ import numpy as np
 import torch as th
 from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 
-from sim2real.errors import UnknownNameError
+from sim2real.errors import ConfigError, UnknownNameError
+from sim2real.train.distill import Distill
 
 DIAG_EVERY = 20  # train() calls between diagnostic samples (one extra forward pass each)
 
@@ -71,12 +72,32 @@ class SACDiag(_ActorCriticDiagnostics, SAC):
 
 
 class DQNDiag(DQN):
-    """Adds the mean and max of the greedy Q-value on a replay batch."""
+    """Adds the mean and max of the greedy Q-value on a replay batch, and double Q-learning.
+
+    ``double_q`` (van Hasselt et al. 2016): the online network picks the next action, the target
+    network values it, which removes the max operator's upward bias. SB3's DQN lacks it and so
+    does sb3-contrib (it has QR-DQN); n-step returns need nothing here, SB3's ``n_steps``
+    argument (``NStepReplayBuffer``) provides them. The double target is taken by handing SB3's
+    unchanged update a target network whose output is the online-selected action's value."""
 
     _diag_calls = 0
 
+    def __init__(self, *args: Any, double_q: bool = False, **kwargs: Any) -> None:
+        if not isinstance(double_q, bool):
+            raise ConfigError(f"dqn double_q must be true or false, got {double_q!r}")
+        self.double_q = double_q
+        super().__init__(*args, **kwargs)
+
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        super().train(gradient_steps, batch_size)
+        if self.double_q:
+            target = self.q_net_target
+            self.q_net_target = _DoubleQTarget(self.q_net, target)  # type: ignore[assignment]
+            try:
+                super().train(gradient_steps, batch_size)
+            finally:
+                self.q_net_target = target
+        else:
+            super().train(gradient_steps, batch_size)
         self._diag_calls += 1
         if self._diag_calls % DIAG_EVERY == 1:
             data = _sample_without_rng_side_effects(self, batch_size)
@@ -84,6 +105,22 @@ class DQNDiag(DQN):
                 q = self.q_net(data.observations).max(dim=1).values
             self.logger.record("train/q_mean", float(q.mean()))
             self.logger.record("train/q_max", float(q.max()))
+
+
+class _DoubleQTarget(th.nn.Module):
+    """Stands in for the target network inside one ``DQN.train`` call: SB3 takes the max over
+    actions of what it returns, so every action is given the target's value of the action the
+    online network prefers; the max is then exactly the double-Q estimate."""
+
+    def __init__(self, online: th.nn.Module, target: th.nn.Module) -> None:
+        super().__init__()
+        self.online = online
+        self.target = target
+
+    def forward(self, obs: Any) -> th.Tensor:
+        q_target = self.target(obs)
+        best = self.online(obs).argmax(dim=1, keepdim=True)
+        return th.gather(q_target, 1, best).expand_as(q_target)
 
 
 class A2CDiag(A2C):
@@ -118,6 +155,8 @@ class AlgoSpec:
     diagnostics: tuple[str, ...]
     doc: str
     accepts_discrete: bool = False  # trains on an env whose own action space is Discrete
+    privileged_critic: bool = False  # has a separate critic that may see the privileged state
+    needs_privileged: bool = False  # always trains on the privileged state (a teacher reads it)
 
 
 _AC_DIAG = ("train/actor_loss", "train/critic_loss", "train/q_mean", "train/action_mean")
@@ -146,6 +185,7 @@ ALGOS: dict[str, AlgoSpec] = {
         ("train/clip_fraction", "train/entropy_loss", "train/value_loss", "train/approx_kl"),
         "clipped on-policy",
         accepts_discrete=True,
+        privileged_critic=True,
     ),
     "a2c": AlgoSpec(
         "a2c",
@@ -156,6 +196,7 @@ ALGOS: dict[str, AlgoSpec] = {
         ("train/value_loss", "train/entropy_loss", "train/grad_norm"),
         "synchronous actor-critic",
         accepts_discrete=True,
+        privileged_critic=True,
     ),
     "dqn": AlgoSpec(
         "dqn",
@@ -166,6 +207,17 @@ ALGOS: dict[str, AlgoSpec] = {
         ("rollout/exploration_rate", "train/q_mean", "train/loss"),
         "discrete joint deltas",
         accepts_discrete=True,
+    ),
+    "distill": AlgoSpec(
+        "distill",
+        Distill,
+        False,
+        True,
+        False,
+        ("train/distill_loss", "train/teacher_agreement", "train/batch_accuracy"),
+        "DAgger from a privileged teacher",
+        accepts_discrete=True,
+        needs_privileged=True,
     ),
 }
 

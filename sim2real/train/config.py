@@ -43,7 +43,11 @@ PRESET_KEYS: tuple[str, ...] = (
     "action_rate_penalty",
     "start_curriculum",
     "max_wall_s",
+    "augment",
+    "privileged_critic",
 )
+# Keys of the ``augment`` preset mapping (pixel policies only, see augment.py).
+AUGMENT_KEYS: tuple[str, ...] = ("random_shift_px",)
 # SB3 constructor arguments the trainer sets itself.
 MANAGED_HYPERPARAMS: frozenset[str] = frozenset(
     {
@@ -91,6 +95,8 @@ class TrainConfig:
     action_rate_penalty: float = 0.0  # training-only reward shaping, see wrappers.py
     start_curriculum: Mapping[str, Any] | None = None  # training-only resets, see wrappers.py
     max_wall_s: float = 0.0  # stop (and save) after this much wall time; 0 = no limit
+    augment: Mapping[str, Any] | None = None  # image augmentation in updates, see augment.py
+    privileged_critic: bool = False  # asymmetric actor-critic, see asymmetric.py
     spec_path: str | None = None
     preset: str = ""
     progress: bool = True
@@ -157,11 +163,35 @@ class TrainConfig:
         if self.start_curriculum is not None:
             _check_start_curriculum(self.env_id, self.start_curriculum)
             object.__setattr__(self, "start_curriculum", dict(self.start_curriculum))
+        if self.augment is not None:
+            _check_augment(self.augment)
+            object.__setattr__(self, "augment", dict(self.augment))
+        if not isinstance(self.privileged_critic, bool):
+            raise ConfigError(
+                f"privileged_critic must be true or false, got {self.privileged_critic!r}"
+            )
+        if self.privileged_critic and not algo.privileged_critic:
+            ok = sorted(n for n, a in _algos().items() if a.privileged_critic)
+            raise ConfigError(
+                f"privileged_critic needs an algo with a separate critic ({', '.join(ok)}); "
+                f"got {algo.name!r}"
+            )
+        if (self.privileged_critic or algo.needs_privileged) and self.policy is not None:
+            raise ConfigError(
+                f"policy {self.policy!r}: an asymmetric or distilled run builds its own policy"
+            )
         _check_hyperparams(algo.name, self.hyperparams)
         _check_env_kwargs(self.env_id, self.env_kwargs)
         object.__setattr__(
             self, "discrete_magnitudes", tuple(float(m) for m in self.discrete_magnitudes)
         )
+
+    @property
+    def uses_privileged(self) -> bool:
+        """Training envs carry the privileged state (an asymmetric critic or a teacher)."""
+        from sim2real.train.algos import get_algo
+
+        return self.privileged_critic or get_algo(self.algo).needs_privileged
 
     @property
     def checkpoint_interval(self) -> int:
@@ -194,6 +224,8 @@ class TrainConfig:
             if self.start_curriculum is None
             else dict(self.start_curriculum),
             "max_wall_s": self.max_wall_s,
+            "augment": None if self.augment is None else dict(self.augment),
+            "privileged_critic": self.privileged_critic,
             "spec_path": self.spec_path,
             "preset": self.preset,
             "progress": self.progress,
@@ -254,9 +286,36 @@ def _check_start_curriculum(env_id: str, sc: Any) -> None:
         )
 
 
+def _check_augment(aug: Any) -> None:
+    """``{random_shift_px: n}``; the trainer checks that the env observes an image."""
+    from sim2real.train.augment import check_shift_px
+
+    if not isinstance(aug, Mapping):
+        raise ConfigError(f"augment must be a mapping like {{random_shift_px: 4}}, got {aug!r}")
+    _reject_unknown_keys(aug, AUGMENT_KEYS, "augment")
+    check_shift_px(aug.get("random_shift_px", 0))
+
+
+def constructor_params(cls: type) -> set[str]:
+    """Keyword arguments a class accepts, through subclasses that pass ``**kwargs`` on."""
+    out: set[str] = set()
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        params = inspect.signature(vars(klass)["__init__"]).parameters
+        out |= {
+            n
+            for n, p in params.items()
+            if p.kind is p.KEYWORD_ONLY or p.kind is p.POSITIONAL_OR_KEYWORD
+        }
+        if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            break
+    return out - {"self"}
+
+
 def _check_hyperparams(algo: str, hp: Mapping[str, Any]) -> None:
     cls = _algos()[algo].cls
-    params = set(inspect.signature(cls.__init__).parameters) - {"self", "kwargs"}
+    params = constructor_params(cls)
     allowed = params - MANAGED_HYPERPARAMS
     unknown = sorted(set(hp) - allowed)
     if unknown:
@@ -460,6 +519,8 @@ def resolve_config(
         action_rate_penalty=data.get("action_rate_penalty", 0.0),
         start_curriculum=data.get("start_curriculum"),
         max_wall_s=data.get("max_wall_s", 0.0) if max_wall_s is None else max_wall_s,
+        augment=data.get("augment"),
+        privileged_critic=_as_bool("privileged_critic", data.get("privileged_critic", False)),
         spec_path=spec_path,
         preset=path.stem if path.parent == PRESET_DIR else str(path),
         progress=progress,

@@ -88,9 +88,23 @@ def get_extractor(name: str) -> type[BaseFeaturesExtractor]:
         raise UnknownNameError("features_extractor", name, FEATURE_EXTRACTORS) from None
 
 
-def resolve_policy_kwargs(pk: dict[str, Any]) -> dict[str, Any]:
-    """Names in a preset's ``policy_kwargs`` → the classes SB3 takes."""
+def resolve_policy_kwargs(
+    pk: dict[str, Any], shift_px: int = 0, pixel_actor: bool = False
+) -> dict[str, Any]:
+    """Names in a preset's ``policy_kwargs`` → the classes SB3 takes. With image augmentation or
+    an asymmetric policy the named CNN (NatureCNN by default) runs inside ``PixelActorExtractor``."""
     out = dict(pk)
-    if "features_extractor" in out:
+    if shift_px or pixel_actor:
+        from sim2real.train.augment import PixelActorExtractor
+
+        base = str(out.pop("features_extractor", "nature_cnn"))
+        get_extractor(base)
+        out["features_extractor_kwargs"] = {
+            "base": base,
+            "shift_px": shift_px,
+            "base_kwargs": dict(out.get("features_extractor_kwargs") or {}),
+        }
+        out["features_extractor_class"] = PixelActorExtractor
+    elif "features_extractor" in out:
         out["features_extractor_class"] = get_extractor(str(out.pop("features_extractor")))
     return out

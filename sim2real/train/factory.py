@@ -2,7 +2,7 @@
 
 Each worker env is ``gym.make(id, dr=DRConfig, spec=ArmSpec, **env_kwargs)``, then the discrete
 action wrapper when the algorithm needs one (never for an env whose own actions are ``Discrete``),
-then SB3's ``Monitor`` (one CSV per env and training segment, with the final ``is_success`` and
+then, for an asymmetric critic or a DAgger teacher, ``PrivilegedObservation``, then SB3's ``Monitor`` (one CSV per env and training segment, with the final ``is_success`` and
 ``distance_m`` of every episode). Image observations are transposed to channel-first here, not by
 SB3, so that a ``VecNormalize`` (reward scaling only: images are never normalised) sits outside
 the transpose and the frames an off-policy replay buffer stores have the policy's layout.
@@ -34,6 +34,7 @@ def make_env(
     monitor_path: str | None = None,
     action_rate_penalty: float = 0.0,
     start_curriculum: Mapping[str, Any] | None = None,
+    privileged: bool = False,
 ) -> gym.Env[Any, Any]:
     """One env as training sees it (module-level, so subprocess workers can pickle it)."""
     import sim2real.envs as envs
@@ -51,6 +52,10 @@ def make_env(
         from sim2real.train.wrappers import DiscreteDeltaActions
 
         env = DiscreteDeltaActions(env, action_table)
+    if privileged:
+        from sim2real.train.wrappers import PrivilegedObservation
+
+        env = PrivilegedObservation(env)
     if monitor_path is not None:
         env = Monitor(env, monitor_path, info_keywords=MONITOR_KEYWORDS)
     return env
@@ -65,6 +70,7 @@ def build_vec_env(
     monitor_prefix: str | None = None,
     action_rate_penalty: float = 0.0,
     start_curriculum: Mapping[str, Any] | None = None,
+    privileged: bool = False,
 ) -> VecEnv:
     """``len(seeds)`` envs; env i resets first with ``seeds[i]`` (seeds must be consecutive)."""
     fns: list[Callable[[], gym.Env[Any, Any]]] = [
@@ -76,6 +82,7 @@ def build_vec_env(
             None if monitor_prefix is None else f"{monitor_prefix}.{i}",
             action_rate_penalty,
             None if start_curriculum is None else dict(start_curriculum),
+            privileged,
         )
         for i in range(len(seeds))
     ]

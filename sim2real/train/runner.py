@@ -25,12 +25,14 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from hardware.spec import ArmSpec, load_spec
 from sim2real.errors import ConfigError, RunDirError
 from sim2real.randomization import DRConfig, load_preset
 from sim2real.train.algos import ACTIVATIONS, AlgoSpec, get_algo
+from sim2real.train.asymmetric import AsymmetricActorCriticPolicy
 from sim2real.train.atomic import atomic_write
 from sim2real.train.callbacks import (
     EpisodeLog,
@@ -107,6 +109,15 @@ def _action_table(cfg: TrainConfig, algo: AlgoSpec, env: gym.Env[Any, Any]) -> n
     )
 
 
+def _check_observation_features(cfg: TrainConfig, env: gym.Env[Any, Any]) -> None:
+    """Augmentation needs an image; an asymmetric critic or a teacher the privileged state."""
+    if cfg.augment and not is_image_space(env.observation_space):
+        raise ConfigError(f"augment: {cfg.env_id} does not observe an image")
+    if cfg.uses_privileged and getattr(env.unwrapped, "privileged_space", None) is None:
+        what = "privileged_critic" if cfg.privileged_critic else f"algo {cfg.algo}"
+        raise ConfigError(f"{what}: {cfg.env_id} reports no privileged state")
+
+
 def _env_kwargs(cfg: TrainConfig, dr: DRConfig, spec: ArmSpec) -> dict[str, Any]:
     return {**dict(cfg.env_kwargs), "dr": dr, "spec": spec}
 
@@ -168,7 +179,8 @@ def _hyperparams(cfg: TrainConfig, algo: AlgoSpec, n_actions: int) -> dict[str, 
     pk = dict(hp.get("policy_kwargs") or {})
     if "activation_fn" in pk:
         pk["activation_fn"] = ACTIVATIONS[pk["activation_fn"]]
-    pk = resolve_policy_kwargs(pk)
+    shift_px = int((cfg.augment or {}).get("random_shift_px", 0))
+    pk = resolve_policy_kwargs(pk, shift_px, pixel_actor=cfg.uses_privileged)
     if pk:
         hp["policy_kwargs"] = pk
     if cfg.action_noise is not None:
@@ -210,6 +222,7 @@ class _Session:
             check_action_space(self.algo.name, cfg.env_id, discrete)
             self.table = _action_table(cfg, self.algo, probe)
             self.obs_desc = _obs_description(probe)
+            _check_observation_features(cfg, probe)
         finally:
             probe.close()
         self.status = rd.read_status()
@@ -231,6 +244,7 @@ class _Session:
                 str(self.rd.monitor_dir / f"seg{self.segment}"),
                 self.cfg.action_rate_penalty,
                 self.cfg.start_curriculum,
+                self.cfg.uses_privileged,
             )
         )
         if vecnormalize is not None:
@@ -358,12 +372,15 @@ def _setup(
     session = _Session(cfg, rd, spec, dr)
     venv = session.vec_env(None)
     algo = session.algo
-    policy = cfg.policy or policy_for(venv.observation_space)
+    policy_cls: Any = cfg.policy or policy_for(venv.observation_space)
+    if cfg.uses_privileged:
+        policy_cls = AsymmetricActorCriticPolicy
+    policy = policy_cls if isinstance(policy_cls, str) else policy_cls.__name__
     try:
         space = venv.action_space
         n_actions = int(np.prod(space.shape)) if isinstance(space, gym.spaces.Box) else 0
         model = algo.cls(
-            policy,
+            policy_cls,
             venv,
             seed=cfg.seed,
             device="cpu",

@@ -138,3 +138,43 @@ class StartCurriculum(gym.Wrapper[Any, Any, Any, Any]):
         if "start" not in opts and self._rng.random() < self.held_prob:
             opts["start"] = self._start_held
         return self.env.reset(seed=seed, options=opts or None)
+
+
+# The env's documented info key for its privileged state (``kuka_grasp.PRIVILEGED_INFO_KEY``).
+PRIVILEGED_INFO_KEY = "privileged_state"
+
+
+class PrivilegedObservation(gym.Wrapper[Any, Any, Any, Any]):
+    """Training-only: the observation becomes ``{"pixels": obs, "privileged": info[...]}``.
+
+    The env reports its privileged state (object positions and the like) in ``info`` at reset and
+    at every step, beside an observation that never contains it; only this wrapper, which the
+    trainer adds for an asymmetric critic or a DAgger teacher, moves it into the observation.
+    Evaluation and deployment build bare envs, so a policy's actor cannot come to rely on it.
+    """
+
+    def __init__(self, env: gym.Env[Any, Any]) -> None:
+        super().__init__(env)
+        from sim2real.train.augment import PIXELS_KEY, PRIVILEGED_KEY
+
+        space = getattr(env.unwrapped, "privileged_space", None)
+        if not isinstance(space, gym.spaces.Box):
+            raise ConfigError(
+                f"{type(env.unwrapped).__name__} reports no privileged state "
+                f"(info[{PRIVILEGED_INFO_KEY!r}]); asymmetric critics and distillation need one"
+            )
+        self._pixels, self._privileged = PIXELS_KEY, PRIVILEGED_KEY
+        self.observation_space = gym.spaces.Dict(
+            {PIXELS_KEY: env.observation_space, PRIVILEGED_KEY: space}
+        )
+
+    def _obs(self, obs: Any, info: dict[str, Any]) -> dict[str, Any]:
+        return {self._pixels: obs, self._privileged: info[PRIVILEGED_INFO_KEY]}
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        return self._obs(obs, info), info
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, term, trunc, info = self.env.step(action)
+        return self._obs(obs, info), float(reward), term, trunc, info
