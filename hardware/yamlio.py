@@ -1,10 +1,11 @@
-"""A strict YAML subset, so the hardware layer runs beside the arm with only numpy and pyserial.
+"""YAML for the hardware layer: PyYAML's safe loader in, a small deterministic writer out.
 
-It reads what the project writes: block mappings, block sequences (of scalars or mappings), one-line
-flow sequences of scalars, comments, and plain/quoted scalars (int, float, bool, null, str). Anything
-else (anchors, multi-line strings, flow mappings, tabs) is refused with the line number, never
-guessed. The test suite checks that PyYAML reads every document this module writes identically and
-that this module reads PyYAML's output of the same data identically.
+Reading is ``yaml.safe_load`` with two additions the arm's files need: a duplicate key is an error
+(PyYAML keeps the last one silently, which would hide a typo in a spec), and every error is one
+line naming the file, the line and the text there. Writing stays here rather than
+``yaml.safe_dump`` because its bytes are the spec fingerprint (``ArmSpec.fingerprint``) that
+exported policies carry: flow lists of numbers, header comments, and scalars quoted exactly when
+PyYAML would otherwise read them back as something else (its own resolver decides).
 """
 
 from __future__ import annotations
@@ -12,225 +13,64 @@ from __future__ import annotations
 import math
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+import yaml
 
 from hardware.atomic import atomic_write_text
 from hardware.errors import YamlError
 
-_INT_RE = re.compile(r"^[-+]?(0|[1-9][0-9_]*)$")
-# Floats exactly as PyYAML resolves them (a dot is required, an exponent needs its sign), so
-# that a string PyYAML writes unquoted, such as '1e5' or '0E0', reads back as a string here too.
-_FLOAT_RE = re.compile(
-    r"^(?:[-+]?[0-9][0-9_]*\.[0-9_]*(?:[eE][-+][0-9]+)?|\.[0-9][0-9_]*(?:[eE][-+][0-9]+)?)$"
-)
-_INF = {
-    f"{sign}.{word}": (-math.inf if sign == "-" else math.inf)
-    for sign in ("", "+", "-")
-    for word in ("inf", "Inf", "INF")
-}
-# Words PyYAML (YAML 1.1) reads as booleans: written quoted so PyYAML reads them back as strings.
-_YAML11_BOOL = {
-    w
-    for base in ("yes", "no", "on", "off", "true", "false")
-    for w in (base, base.title(), base.upper())
-}
-_NAN = {".nan", ".NaN", ".NAN"}
-_BOOL = {"true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False}
-_NULL = {"null", "Null", "NULL", "~", ""}
+_STR_TAG = "tag:yaml.org,2002:str"
+_RESOLVER = yaml.resolver.Resolver()
+# Strings the writer may leave unquoted (then only if PyYAML resolves them as strings).
 _PLAIN_SAFE = re.compile(r"^[A-Za-z_/.][A-Za-z0-9_ ./+()-]*$")
 
 
-def _strip_comment(text: str) -> str:
-    """Drop a trailing ``# comment`` that is outside quotes (``\\"`` does not close a
-    double-quoted string; ``''`` inside a single-quoted one closes and reopens it, which is the
-    same)."""
-    quote = ""
-    escaped = False
-    for i, ch in enumerate(text):
-        if quote:
-            if escaped:
-                escaped = False
-            elif quote == '"' and ch == "\\":
-                escaped = True
-            elif ch == quote:
-                quote = ""
-        elif ch in "'\"":
-            quote = ch
-        elif ch == "#" and (i == 0 or text[i - 1] in " \t"):
-            return text[:i].rstrip()
-    return text.rstrip()
+class _Loader(yaml.SafeLoader):
+    """``SafeLoader`` that refuses duplicate keys."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        self.flatten_mapping(node)
+        seen: set[Hashable] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if isinstance(key, Hashable):
+                if key in seen:
+                    raise YamlError(f"line {key_node.start_mark.line + 1}: duplicate key {key!r}")
+                seen.add(key)
+        return super().construct_mapping(node, deep=deep)
 
 
-def parse_scalar(token: str, line_no: int = 0) -> Any:
-    """One scalar as YAML 1.2 core schema reads it (plus PyYAML's float forms)."""
-    tok = token.strip()
-    if len(tok) >= 2 and tok[0] == tok[-1] and tok[0] in "'\"":
-        body = tok[1:-1]
-        if tok[0] == "'":
-            return body.replace("''", "'")
-        return body.encode("utf-8").decode("unicode_escape")
-    if tok in _NULL:
-        return None
-    if tok in _BOOL:
-        return _BOOL[tok]
-    if tok in _INF:
-        return _INF[tok]
-    if tok in _NAN:
-        return math.nan
-    if _INT_RE.match(tok):
-        return int(tok.replace("_", ""))
-    if _FLOAT_RE.match(tok) and any(c.isdigit() for c in tok):
-        return float(tok.replace("_", ""))
-    if tok[0] in "[{&*!|>%@`":
-        raise YamlError(f"line {line_no}: unsupported YAML construct {tok!r}")
-    return tok
-
-
-def _split_flow_items(inner: str, text: str, line_no: int) -> list[str]:
-    """Split ``a, "b, c", 'd'`` at the commas outside quotes."""
-    items: list[str] = []
-    current: list[str] = []
-    quote = ""
-    i = 0
-    while i < len(inner):
-        ch = inner[i]
-        if quote:
-            current.append(ch)
-            if quote == '"' and ch == "\\" and i + 1 < len(inner):
-                current.append(inner[i + 1])
-                i += 1
-            elif ch == quote:
-                if quote == "'" and inner[i + 1 : i + 2] == "'":
-                    current.append("'")
-                    i += 1
-                else:
-                    quote = ""
-        elif ch in "'\"" and not "".join(current).strip():
-            quote = ch
-            current.append(ch)
-        elif ch in "[]{}":
-            raise YamlError(f"line {line_no}: nested flow collections are not supported: {text!r}")
-        elif ch == ",":
-            items.append("".join(current))
-            current = []
-        else:
-            current.append(ch)
-        i += 1
-    if quote:
-        raise YamlError(f"line {line_no}: unterminated quote in {text!r}")
-    items.append("".join(current))
-    return items
-
-
-def _parse_flow_seq(text: str, line_no: int) -> list[Any]:
-    inner = text.strip()[1:-1].strip()
-    if not inner:
-        return []
-    return [parse_scalar(part, line_no) for part in _split_flow_items(inner, text, line_no)]
-
-
-def _value(text: str, line_no: int) -> Any:
-    text = text.strip()
-    if text.startswith("["):
-        if not text.endswith("]"):
-            raise YamlError(f"line {line_no}: unterminated flow sequence {text!r}")
-        return _parse_flow_seq(text, line_no)
-    return parse_scalar(text, line_no)
-
-
-class _Parser:
-    def __init__(self, text: str) -> None:
-        self.lines: list[tuple[int, int, str]] = []  # (line_no, indent, content)
-        for no, raw in enumerate(text.splitlines(), start=1):
-            if "\t" in raw[: len(raw) - len(raw.lstrip())]:
-                raise YamlError(f"line {no}: tabs are not allowed for indentation")
-            content = _strip_comment(raw)
-            if not content.strip() or content.strip() in ("---", "..."):
-                continue
-            indent = len(content) - len(content.lstrip(" "))
-            self.lines.append((no, indent, content.strip()))
-        self.pos = 0
-
-    def parse(self) -> Any:
-        if not self.lines:
-            return None
-        result = self._block(self.lines[0][1])
-        if self.pos != len(self.lines):
-            no, _, content = self.lines[self.pos]
-            raise YamlError(f"line {no}: unexpected indentation at {content!r}")
-        return result
-
-    def _block(self, indent: int) -> Any:
-        _, _, content = self.lines[self.pos]
-        if content == "-" or content.startswith("- "):
-            return self._seq(indent)
-        return self._map(indent)
-
-    def _split_key(self, content: str, no: int) -> tuple[str, str]:
-        m = re.match(r"""^("[^"]*"|'[^']*'|[^:#\[\]{}]+?)\s*:(\s+(.*))?$""", content)
-        if not m:
-            raise YamlError(f"line {no}: expected 'key: value', got {content!r}")
-        key = parse_scalar(m.group(1), no)
-        return str(key), (m.group(3) or "")
-
-    def _map(self, indent: int) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        while self.pos < len(self.lines):
-            no, ind, content = self.lines[self.pos]
-            if ind < indent:
-                break
-            if ind > indent:
-                raise YamlError(f"line {no}: unexpected indentation at {content!r}")
-            if content.startswith("- "):
-                raise YamlError(f"line {no}: a list item where a mapping key was expected")
-            key, rest = self._split_key(content, no)
-            if key in out:
-                raise YamlError(f"line {no}: duplicate key {key!r}")
-            self.pos += 1
-            if rest:
-                out[key] = _value(rest, no)
-            elif self.pos < len(self.lines) and (
-                self.lines[self.pos][1] > indent
-                or (self.lines[self.pos][1] == indent and self.lines[self.pos][2].startswith("-"))
-            ):
-                out[key] = self._block(self.lines[self.pos][1])
-            else:
-                out[key] = None
-        return out
-
-    def _seq(self, indent: int) -> list[Any]:
-        out: list[Any] = []
-        while self.pos < len(self.lines):
-            no, ind, content = self.lines[self.pos]
-            if ind < indent or not (content == "-" or content.startswith("- ")):
-                if ind > indent:
-                    raise YamlError(f"line {no}: unexpected indentation at {content!r}")
-                break
-            if ind > indent:
-                raise YamlError(f"line {no}: unexpected indentation at {content!r}")
-            rest = content[1:].strip()
-            if not rest:
-                self.pos += 1
-                out.append(
-                    self._block(self.lines[self.pos][1]) if self.pos < len(self.lines) else None
-                )
-                continue
-            if re.match(r"""^("[^"]*"|'[^']*'|[^:#\[\]{}'"]+?)\s*:(\s|$)""", rest):
-                # "- key: value" opens a mapping whose keys sit at the column after "- ".
-                child_indent = ind + (len(content) - len(rest))
-                self.lines[self.pos] = (no, child_indent, rest)
-                out.append(self._map(child_indent))
-            else:
-                self.pos += 1
-                out.append(_value(rest, no))
-        return out
+def _line(text: str, index: int) -> str:
+    lines = text.splitlines()
+    return lines[index].strip() if 0 <= index < len(lines) else ""
 
 
 def loads(text: str) -> Any:
-    """Parse a YAML document of the supported subset."""
-    return _Parser(text).parse()
+    """Parse one YAML document (PyYAML safe load, duplicate keys refused)."""
+    try:
+        return yaml.load(text, Loader=_Loader)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        msg = f"{where}{exc.problem or exc.context}"
+        if "'\\t'" in msg:
+            msg += " (tabs are not allowed for indentation)"
+        if mark is not None:
+            msg += f" at {_line(text, mark.line)!r}"
+        cm = exc.context_mark
+        if (
+            exc.context
+            and exc.problem
+            and cm is not None
+            and (mark is None or cm.line != mark.line)
+        ):
+            msg += f" ({exc.context} opened on line {cm.line + 1}: {_line(text, cm.line)!r})"
+        raise YamlError(msg.replace("\n", " ").replace("\t", "\\t")) from None
+    except yaml.YAMLError as exc:
+        raise YamlError(" ".join(str(exc).split())) from None
 
 
 def load(path: str | os.PathLike[str]) -> Any:
@@ -246,6 +86,11 @@ def load(path: str | os.PathLike[str]) -> Any:
         return loads(text)
     except YamlError as exc:
         raise YamlError(f"{p}: {exc}") from None
+
+
+def _reads_back_as_str(text: str) -> bool:
+    """Whether PyYAML (YAML 1.1 words such as ``on`` included) reads plain ``text`` as a str."""
+    return _RESOLVER.resolve(yaml.ScalarNode, text, (True, False)) == _STR_TAG
 
 
 def format_scalar(value: Any) -> str:
@@ -269,10 +114,7 @@ def format_scalar(value: Any) -> str:
     if hasattr(value, "item") and callable(value.item):  # numpy scalar
         return format_scalar(value.item())
     text = str(value)
-    if text in _YAML11_BOOL:  # PyYAML would read these plain words as booleans
-        return f'"{text}"'
-    parsed = parse_scalar(text) if _PLAIN_SAFE.match(text) else None
-    if isinstance(parsed, str) and parsed == text and not text.endswith(" "):
+    if _PLAIN_SAFE.match(text) and not text.endswith(" ") and _reads_back_as_str(text):
         return text
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 

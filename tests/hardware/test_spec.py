@@ -57,7 +57,7 @@ def test_to_yaml_round_trips_exactly(tmp_path: Path) -> None:
         ("lower_rad: -1.57", "lower_rad: -2.5", "more than the servo range"),
         ("max_step_rad: 0.25", "max_step_rad: .nan", "safety.max_step_rad must be finite"),
         ("name: arm3-mg996r", "name: arm3\ncolour: red", r"unknown key\(s\) \['colour'\]"),
-        ("  upper_arm_m: 0.12", "  upper_arm_m: [0.12", "unterminated flow sequence"),
+        ("  upper_arm_m: 0.12", "  upper_arm_m: [0.12", r"flow sequence opened on line \d+"),
     ],
 )
 def test_bad_specs_fail_with_one_line_naming_the_value(
