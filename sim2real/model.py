@@ -16,6 +16,7 @@ from typing import Literal
 import mujoco
 import numpy as np
 
+from calibration.cube import MarkerCube, SeamMarkers
 from hardware.spec import ArmSpec
 from sim2real.errors import ConfigError, UnknownNameError
 
@@ -40,6 +41,7 @@ EE_MARKER_GEOM = "ee_marker"
 PATH_GEOM_PREFIX = "seam_"
 SEAM_BODY = "seam"
 SEAM_LENGTH_M = 0.12
+SEAM_BODY_Z_M = 0.0003  # the seam's line sits just above the table (no z-fighting)
 
 # ArUco markers for the camera pipeline (deploy scenes): DICT_4X4_50 ids, black square side.
 MARKER_DICTIONARY = "DICT_4X4_50"
@@ -54,6 +56,13 @@ MARKER_FILL = 0.75
 # the gripper is high and the view grazes it).
 EE_MARKER_POS_M = (0.02, 0.0, 0.022)
 EE_MARKER_TILT_RAD = 0.7
+# The pick cube's face markers and the trace seam's end plates (deploy scenes only): their
+# geometry is shared with the tracker and the printable sheet, so it lives in calibration.
+MARKER_CUBE = MarkerCube(size_m=0.025, marker_m=0.02, face_ids=(2, 3, 4, 5, 6))
+CUBE_MARKER_TEXTURE_PX = 120  # 96 px of black square: 16 px per ArUco module (6 x 6)
+CUBE_MARKER_GEOM_PREFIX = "cube_marker_"
+SEAM_MARKERS = SeamMarkers(start_id=7, end_id=8, marker_m=0.03, end_offset_m=0.027)
+SEAM_MARKER_GEOM_PREFIX = "seam_marker_"
 
 PHYSICS_TIMESTEP_S = 0.005
 # Position-servo stiffness: the stall torque is reached at this tracking error.
@@ -171,6 +180,60 @@ def _quat_from_R(R: np.ndarray) -> np.ndarray:
     return q
 
 
+def marker_fill(marker_id: int) -> float:
+    """The black square's share of its texture's side, for the ``aruco_<id>`` textures."""
+    return MARKER_CUBE.marker_fill if marker_id in MARKER_CUBE.face_ids else MARKER_FILL
+
+
+def _marker_assets(scene: str) -> str:
+    """Flat white ``aruco_<id>`` textures and materials (the images are written after compiling)."""
+    sides = {TARGET_MARKER_ID: MARKER_TEXTURE_PX, EE_MARKER_ID: MARKER_TEXTURE_PX}
+    if scene == "pick":
+        sides.update(dict.fromkeys(MARKER_CUBE.face_ids, CUBE_MARKER_TEXTURE_PX))
+    if scene == "trace":
+        sides.update(dict.fromkeys((SEAM_MARKERS.start_id, SEAM_MARKERS.end_id), MARKER_TEXTURE_PX))
+    return "".join(
+        f'<texture name="aruco_{i}" type="2d" builtin="flat" width="{px}" height="{px}" '
+        f'rgb1="1 1 1"/><material name="aruco_{i}" texture="aruco_{i}" specular="0" '
+        'shininess="0"/>'
+        for i, px in sides.items()
+    )
+
+
+def _cube_marker_geoms() -> str:
+    """One thin plate per visible face, its outer surface 0.1 mm outside the cube's (where the
+    tracker expects the marker, within the depth buffer's resolution): massless and
+    contact-free, so the cube's physics is the training scene's."""
+    half_thick = 0.0001
+    geoms = []
+    for marker_id in MARKER_CUBE.face_ids:
+        T = MARKER_CUBE.cube_T_face(marker_id)
+        pos = T[:3, 3]
+        h = MARKER_CUBE.half_m
+        geoms.append(
+            f'<geom name="{CUBE_MARKER_GEOM_PREFIX}{marker_id}" type="box" '
+            f'size="{_f(h, h, half_thick)}" pos="{_f(*pos)}" quat="{_f(*_quat_from_R(T[:3, :3]))}" '
+            f'material="aruco_{marker_id}" contype="0" conaffinity="0" mass="0"/>'
+        )
+    return "".join(geoms)
+
+
+def _seam_marker_geoms() -> str:
+    """The two end plates, flat on the table on the seam's line (seam body frame: +x along it)."""
+    half = SEAM_MARKERS.marker_m / MARKER_FILL / 2
+    half_thick = 0.0008
+    ends = (
+        (SEAM_MARKERS.start_id, -SEAM_MARKERS.end_offset_m),
+        (SEAM_MARKERS.end_id, SEAM_LENGTH_M + SEAM_MARKERS.end_offset_m),
+    )
+    return "".join(
+        f'<geom name="{SEAM_MARKER_GEOM_PREFIX}{marker_id}" type="box" '
+        f'size="{_f(half, half, half_thick)}" pos="{_f(x, 0, half_thick - SEAM_BODY_Z_M)}" '
+        f'material="aruco_{marker_id}" contype="0" conaffinity="0"/>'
+        for marker_id, x in ends
+    )
+
+
 def _arm_xml(spec: ArmSpec, markers: bool = False) -> tuple[str, str]:
     """(worldbody XML of the arm, tendon/equality/actuator XML)."""
     L = spec.links
@@ -245,7 +308,8 @@ def build_mjcf(
 ) -> str:
     """The MJCF text of the arm in a scene with the stereo rig.
 
-    ``markers=True`` adds ArUco plates (on the target and on the wrist) whose textures
+    ``markers=True`` adds ArUco plates (on the target and on the wrist; in ``pick`` on the
+    cube's five visible faces, in ``trace`` at the seam's two ends) whose textures
     ``sim2real.deploy.marker_textures.install_marker_textures`` fills in after compilation.
     """
     if scene not in SCENES:
@@ -262,12 +326,7 @@ def build_mjcf(
             f'<geom name="{TARGET_PLATE_GEOM}" type="box" size="{_f(plate, plate, 0.0008)}" '
             f'material="aruco_{TARGET_MARKER_ID}" contype="0" conaffinity="0"/>'
         )
-        marker_assets = "".join(
-            f'<texture name="aruco_{i}" type="2d" builtin="flat" width="{MARKER_TEXTURE_PX}" '
-            f'height="{MARKER_TEXTURE_PX}" rgb1="1 1 1"/><material name="aruco_{i}" '
-            f'texture="aruco_{i}" specular="0" shininess="0"/>'
-            for i in (TARGET_MARKER_ID, EE_MARKER_ID)
-        )
+        marker_assets = _marker_assets(scene)
     cams = []
     for cam in rig.cameras:
         quat = _quat_from_R(cam.base_R_cam_mujoco())
@@ -280,7 +339,7 @@ def build_mjcf(
         cube = f"""
     <body name="{CUBE_BODY}" pos="0.16 0 0.0125">
       <freejoint name="{CUBE_JOINT}"/>
-      <geom name="{CUBE_GEOM}" type="box" size="0.0125 0.0125 0.0125" mass="0.03" rgba="0.9 0.5 0.1 1" condim="4" friction="1.2 0.01 0.001" priority="1"/>
+      <geom name="{CUBE_GEOM}" type="box" size="0.0125 0.0125 0.0125" mass="0.03" rgba="0.9 0.5 0.1 1" condim="4" friction="1.2 0.01 0.001" priority="1"/>{_cube_marker_geoms() if markers else ""}
     </body>"""
     path = ""
     if scene == "trace":
@@ -289,12 +348,13 @@ def build_mjcf(
         n_seg = 12
         seg = SEAM_LENGTH_M / n_seg
         path = (
-            f'<body name="{SEAM_BODY}" mocap="true" pos="0.15 0 0.0003">'
+            f'<body name="{SEAM_BODY}" mocap="true" pos="0.15 0 {_f(SEAM_BODY_Z_M)}">'
             + "".join(
                 f'<geom name="{PATH_GEOM_PREFIX}{i}" type="box" size="{_f(seg / 2)} 0.0015 0.0002" '
                 f'pos="{_f((i + 0.5) * seg)} 0 0" rgba="0.1 0.1 0.1 1" contype="0" conaffinity="0"/>'
                 for i in range(n_seg)
             )
+            + (_seam_marker_geoms() if markers else "")
             + "</body>"
         )
     return f"""<mujoco model="{spec.name}-{scene}">

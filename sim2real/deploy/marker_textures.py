@@ -13,11 +13,16 @@ import numpy as np
 
 from sim2real import model as names
 
+TEXTURE_PREFIX = "aruco_"
 
-def marker_image(marker_id: int, side_px: int = names.MARKER_TEXTURE_PX) -> np.ndarray:
-    """(side, side) uint8: the ArUco marker (black square = MARKER_FILL of the side), white margin."""
+
+def marker_image(
+    marker_id: int, side_px: int = names.MARKER_TEXTURE_PX, fill: float | None = None
+) -> np.ndarray:
+    """(side, side) uint8: the ArUco marker (black square = ``fill`` of the side, by default the
+    id's fill in the scene, ``names.marker_fill``) on a white margin."""
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, names.MARKER_DICTIONARY))
-    inner = round(side_px * names.MARKER_FILL)
+    inner = round(side_px * (names.marker_fill(marker_id) if fill is None else fill))
     img = cv2.aruco.generateImageMarker(dictionary, marker_id, inner, borderBits=1)
     pad = side_px - inner
     return cv2.copyMakeBorder(
@@ -25,10 +30,21 @@ def marker_image(marker_id: int, side_px: int = names.MARKER_TEXTURE_PX) -> np.n
     )
 
 
+def marker_texture_ids(model: mujoco.MjModel) -> list[int]:
+    """The marker ids of the model's ``aruco_<id>`` textures (plates, cube faces, seam ends)."""
+    ids = []
+    for t in range(model.ntex):
+        name = model.texture(t).name
+        if name.startswith(TEXTURE_PREFIX) and name[len(TEXTURE_PREFIX) :].isdigit():
+            ids.append(int(name[len(TEXTURE_PREFIX) :]))
+    return ids
+
+
 def install_marker_textures(model: mujoco.MjModel) -> None:
-    """Write the ArUco images into the flat ``aruco_<id>`` textures (before any renderer exists)."""
-    for marker_id in (names.TARGET_MARKER_ID, names.EE_MARKER_ID):
-        tex = model.texture(f"aruco_{marker_id}")
+    """Write the ArUco images into every flat ``aruco_<id>`` texture (before any renderer
+    exists: a renderer uploads the textures once, when it is made)."""
+    for marker_id in marker_texture_ids(model):
+        tex = model.texture(f"{TEXTURE_PREFIX}{marker_id}")
         h, w, c = int(tex.height[0]), int(tex.width[0]), int(tex.nchannel[0])
         img = np.repeat(marker_image(marker_id, w)[:, :, None], c, axis=2)
         adr = int(tex.adr[0])
