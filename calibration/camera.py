@@ -17,8 +17,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from calibration._atomic import write_text_atomic
 from calibration.errors import CalibrationFileError, ConfigError
+from s2r_common.atomic import atomic_write_text
 
 # Distortion vector lengths OpenCV accepts, and the ROS model name for each.
 _ROS_MODELS: dict[int, str] = {
@@ -173,7 +173,7 @@ class CameraModel:
         entries = dict(self.fs_entries())
         if extra:
             entries.update(extra)
-        return write_text_atomic(path, fs_dumps(entries))
+        return atomic_write_text(path, fs_dumps(entries))
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> CameraModel:

@@ -17,11 +17,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calibration._atomic import write_bytes_atomic
 from calibration.boards import BoardSpec, Detection
 from calibration.capture import Camera, read_pair
 from calibration.errors import BoardNotFoundError, CaptureError, ConfigError
 from calibration.markers import to_gray
+from s2r_common.atomic import atomic_write_bytes
 
 
 @dataclass(frozen=True)
@@ -89,7 +89,7 @@ def capture_views(
             ok, png = cv2.imencode(".png", gray)
             if not ok:
                 raise CaptureError("could not encode a captured frame as PNG")
-            write_bytes_atomic(folders[k] / f"{index:04d}.png", png.tobytes())
+            atomic_write_bytes(folders[k] / f"{index:04d}.png", png.tobytes())
             height, width = gray.shape
             gx, gy = config.grid
             pts = det.image_points

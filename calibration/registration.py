@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from calibration._atomic import write_text_atomic
 from calibration.camera import fs_dumps, fs_loads, fs_mat, read_text
 from calibration.errors import CalibrationFileError, RegistrationError
+from s2r_common.atomic import atomic_write_text
 
 MIN_CORRESPONDENCES = 4
 
@@ -91,7 +91,7 @@ class Registration:
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """FileStorage YAML with ``base_T_cam`` and the residual figures, written atomically."""
-        return write_text_atomic(
+        return atomic_write_text(
             path,
             fs_dumps(
                 {

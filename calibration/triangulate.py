@@ -20,10 +20,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from calibration._atomic import write_text_atomic
 from calibration.camera import CameraModel, fs_dumps, fs_loads, fs_mat, fs_real, read_text
 from calibration.errors import CalibrationFileError, ConfigError
 from calibration.registration import umeyama
+from s2r_common.atomic import atomic_write_text
 
 # OpenGL/MuJoCo cameras look along −z with y up; OpenCV's along +z with y down.
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0])
@@ -188,7 +188,7 @@ class StereoRig:
         entries = self.fs_entries()
         if extra:
             entries.update(extra)
-        return write_text_atomic(path, fs_dumps(entries))
+        return atomic_write_text(path, fs_dumps(entries))
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> StereoRig:

@@ -103,14 +103,14 @@ def _live(args: argparse.Namespace, names: list[str], board: BoardSpec) -> list[
 
 
 def _write_all(files: dict[Path, bytes | str]) -> list[str]:
-    from calibration._atomic import write_bytes_atomic, write_text_atomic
+    from s2r_common.atomic import atomic_write_bytes, atomic_write_text
 
     written = []
     for path, content in files.items():
         if isinstance(content, bytes):
-            write_bytes_atomic(path, content)
+            atomic_write_bytes(path, content)
         else:
-            write_text_atomic(path, content)
+            atomic_write_text(path, content)
         written.append(str(path))
     return written
 

@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration._atomic import write_text_atomic
 from calibration.intrinsics import View, calibrate_camera
 from calibration.report import markdown_report, render_png
 from calibration.synthetic import project_board, random_board_poses
 from calibration.triangulate import StereoRig
+from s2r_common.atomic import atomic_write_text
 
 REPO = Path(__file__).resolve().parents[2]
 MODULES = [p.stem for p in (REPO / "calibration").glob("*.py") if p.stem != "__init__"]
@@ -52,14 +52,14 @@ def test_atomic_write_leaves_old_file_on_failure(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     target = tmp_path / "calib.yaml"
-    write_text_atomic(target, "old")
+    atomic_write_text(target, "old")
 
     def fail(*_: object) -> None:
         raise OSError("disk full")
 
     monkeypatch.setattr(os, "replace", fail)
     with pytest.raises(OSError, match="disk full"):
-        write_text_atomic(target, "new and partial")
+        atomic_write_text(target, "new and partial")
     assert target.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["calib.yaml"]  # temp file cleaned up
 
