@@ -1,6 +1,7 @@
 """Safety that is always on, in front of every Arm backend.
 
-Order of the filter: NaN/inf rejection -> joint limits -> per-step clamp (on by default).
+Order of the filter: NaN/inf rejection -> joint limits -> per-step clamp (on by default) ->
+workspace guard (the spec's FK: tool and elbow above the table plus a margin, inside a box).
 
 Non-finite policy (decided here, documented in docs/hardware.md): a NaN or ±inf entry is *held*:
 that actuator keeps its previously sent target, the others still move, and the event is counted
@@ -14,12 +15,14 @@ raises SafetyError.
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from itertools import combinations
 from types import FrameType
 from typing import Any, Protocol
 
@@ -39,10 +42,71 @@ class SafetyStats:
     nonfinite: int = 0  # commands with at least one NaN/inf entry
     limit_clamped: int = 0  # commands with at least one entry outside the joint limits
     step_clamped: int = 0  # commands with at least one entry over the per-step clamp
+    workspace_clamped: int = 0  # commands the workspace guard held or shortened
+
+
+_BISECT_STEPS = 12  # resolution of the projection back along a step: 1/4096 of it
+# A previous target outside the workspace by less than this is a boundary command rounded to servo
+# units (under 0.5 mm for the shipped spec), not an arm left outside: it earns no allowance, so
+# rounding cannot ratchet the arm outwards one step at a time.
+_ROUNDING_TOLERANCE_M = 1e-3
+
+
+class WorkspaceGuard:
+    """The spec's analytic FK for the tool point and the elbow against the table plane (plus a
+    margin) and the workspace box.
+
+    The filter runs every control period, so the FK here is scalar ``math`` on constants read once
+    (about 1 µs); ``ArmSpec.forward_kinematics``/``elbow_position`` are the reference it is tested
+    against."""
+
+    def __init__(self, spec: ArmSpec) -> None:
+        j0, j1, j2 = spec.joints
+        L = spec.links
+        self._signs = (j0.sign, j1.sign, j2.sign)
+        self._l1, self._l2 = L.upper_arm_m, L.forearm_m
+        self._h, self._tf, self._td = L.base_height_m, L.tool_forward_m, L.tool_down_m
+        self.floor_z_m = spec.workspace.table_z_m + spec.workspace.margin_m
+        box_min, box_max = spec.workspace_box_m()
+        self.box_min_m: tuple[float, ...] = tuple(float(v) for v in box_min)
+        self.box_max_m: tuple[float, ...] = tuple(float(v) for v in box_max)
+
+    def excess_m(self, q_rad: Any) -> float:
+        """How far (m) the worse of tool and elbow lies outside the workspace; <= 0 inside.
+        Takes joint angles, or the actuator vector (the gripper entry is ignored)."""
+        s0, s1, s2 = self._signs
+        q0, q1, q2 = (q_rad.tolist() if isinstance(q_rad, np.ndarray) else q_rad)[:3]
+        yaw = s0 * q0
+        a1 = s1 * q1
+        a12 = a1 + s2 * q2
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        r_elbow = self._l1 * math.sin(a1)
+        z_elbow = self._h + self._l1 * math.cos(a1)
+        r_tool = r_elbow + self._l2 * math.cos(a12) + self._tf
+        z_tool = z_elbow - self._l2 * math.sin(a12) - self._td
+        lo, hi = self.box_min_m, self.box_max_m
+        worst = -math.inf
+        for r, z in ((r_tool, z_tool), (r_elbow, z_elbow)):
+            x, y = r * cy, r * sy
+            worst = max(
+                worst,
+                self.floor_z_m - z,
+                lo[0] - x,
+                x - hi[0],
+                lo[1] - y,
+                y - hi[1],
+                lo[2] - z,
+                z - hi[2],
+            )
+        return worst
+
+    def inside(self, q_rad: Any) -> bool:
+        return self.excess_m(q_rad) <= 0.0
 
 
 class SafetyFilter:
-    """Makes any policy output safe to send: finite, inside the limits, at most one step away."""
+    """Makes any policy output safe to send: finite, inside the limits, at most one step away,
+    with the tool and the elbow inside the workspace."""
 
     def __init__(
         self,
@@ -66,8 +130,19 @@ class SafetyFilter:
         self.upper_rad = spec.actuator_upper_rad.astype(float)
         self.max_step_rad = step
         self.on_nonfinite = on_nonfinite
+        self.guard = WorkspaceGuard(spec)
+        n_joints = spec.n_joints
+        # joint subsets to try when a whole step leaves the workspace, largest first: moving only
+        # some joints lets the tool slide along the table instead of stopping dead on it
+        self._subsets = [
+            np.isin(np.arange(self.n), subset)
+            for k in range(n_joints - 1, 0, -1)
+            for subset in combinations(range(n_joints), k)
+        ]
+        self._joint_mask = np.arange(self.n) < n_joints
         self.stats = SafetyStats()
         self._warned = False
+        self._warned_workspace = False
 
     def clip_to_limits(self, q_rad: np.ndarray) -> np.ndarray:
         return np.clip(np.asarray(q_rad, dtype=float), self.lower_rad, self.upper_rad)
@@ -113,7 +188,52 @@ class SafetyFilter:
             self.stats.step_clamped += 1
         # prev is inside the limits, so a step towards a target inside the limits stays inside;
         # the final clip only guards against float rounding at the boundary.
-        return np.clip(stepped, self.lower_rad, self.upper_rad)
+        out = np.clip(stepped, self.lower_rad, self.upper_rad)
+        return self._guard_workspace(out, prev)
+
+    def _guard_workspace(self, q: np.ndarray, prev: np.ndarray) -> np.ndarray:
+        """``q`` if the workspace allows it, else the safe point nearest to it among: the step
+        with only some joints moved, the step shortened towards ``prev``, and ``prev`` itself.
+
+        From a safe ``prev`` every result is inside. From an unsafe ``prev`` (an arm switched on
+        where it was left) a command may not go further out, so the arm can still be driven back
+        in. Every candidate mixes ``prev`` and ``q`` per joint, so limits and the clamp hold.
+        Backends round the result to servo units, so what a device receives at the boundary can
+        sit outside by that rounding (under 0.5 mm for the shipped spec)."""
+        guard = self.guard
+        excess_m = guard.excess_m(q)
+        if excess_m <= 0.0:  # the hot path: one FK of a command that is inside
+            return q
+        prev_excess_m = guard.excess_m(prev)
+        allowed_m = prev_excess_m if prev_excess_m > _ROUNDING_TOLERANCE_M else 0.0
+        if excess_m <= allowed_m:
+            return q
+        self.stats.workspace_clamped += 1
+        if not self._warned_workspace:
+            log.warning(
+                "workspace guard: targets %s would put the tool or elbow below the table or "
+                "outside the box: holding/shortening the step",
+                np.round(q, 3).tolist(),
+            )
+            self._warned_workspace = True
+        hold = np.where(self._joint_mask, prev, q)  # hold the joints, the gripper still moves
+        best, best_d = hold, float(np.sum((hold - q) ** 2))
+        for mask in self._subsets:
+            cand = np.where(mask, q, hold)
+            d = float(np.sum((cand - q) ** 2))
+            if d < best_d and guard.excess_m(cand) <= allowed_m:
+                best, best_d = cand, d
+        lo_t, hi_t = 0.0, 1.0  # back along the step: lo_t is allowed (or 0), hi_t is not
+        for _ in range(_BISECT_STEPS):
+            mid = 0.5 * (lo_t + hi_t)
+            if guard.excess_m(prev + mid * (q - prev)) <= allowed_m:
+                lo_t = mid
+            else:
+                hi_t = mid
+        cand = np.where(self._joint_mask, prev + lo_t * (q - prev), q)
+        if lo_t > 0.0 and float(np.sum((cand - q) ** 2)) < best_d:
+            best = cand
+        return best
 
 
 class Watchdog:

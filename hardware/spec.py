@@ -208,6 +208,50 @@ class SafetySpec:
         _non_negative("safety.hold_before_disable_s", self.hold_before_disable_s)
 
 
+def _point3(name: str, value: Any) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise SpecError(f"{name} must be 3 numbers [x, y, z] in metres, got {value!r}")
+    x, y, z = (_finite(f"{name}[{i}]", v) for i, v in enumerate(value))
+    return (x, y, z)
+
+
+@dataclass(frozen=True)
+class WorkspaceSpec:
+    """Where the tool point and the elbow may be commanded, in the base frame (metres).
+
+    Both stay at least ``margin_m`` above the table plane and inside the box. A box left out
+    (null) is the bounding box of everything the links can reach, so only the table guards.
+    This is safety configuration, not something a policy learned: it is left out of
+    ``ArmSpec.fingerprint()``, so tightening it never invalidates a trained policy."""
+
+    table_z_m: float = 0.0  # the table plane; the base stands on it
+    margin_m: float = 0.008  # the fingertips reach 5 mm below the tool point: 3 mm clearance
+    box_min_m: tuple[float, float, float] | None = None
+    box_max_m: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        _finite("workspace.table_z_m", self.table_z_m)
+        _non_negative("workspace.margin_m", self.margin_m)
+        lo = _point3("workspace.box_min_m", self.box_min_m)
+        hi = _point3("workspace.box_max_m", self.box_max_m)
+        object.__setattr__(self, "box_min_m", lo)
+        object.__setattr__(self, "box_max_m", hi)
+        if (lo is None) != (hi is None):
+            raise SpecError("workspace.box_min_m and box_max_m must be given together (or neither)")
+        if lo is not None and hi is not None:
+            if any(a >= b for a, b in zip(lo, hi, strict=True)):
+                raise SpecError(
+                    f"workspace.box_min_m {list(lo)} must be below box_max_m {list(hi)} on every axis"
+                )
+            if self.table_z_m + self.margin_m >= hi[2]:
+                raise SpecError(
+                    f"workspace.box_max_m z ({hi[2]}) must be above table_z_m + margin_m "
+                    f"({self.table_z_m + self.margin_m})"
+                )
+
+
 @dataclass(frozen=True)
 class ArmSpec:
     """The arm: joints, geometry, servo model, gripper, safety."""
@@ -218,6 +262,7 @@ class ArmSpec:
     servo: ServoModel = field(default_factory=ServoModel)
     gripper: GripperSpec | None = field(default_factory=GripperSpec)
     safety: SafetySpec = field(default_factory=SafetySpec)
+    workspace: WorkspaceSpec = field(default_factory=WorkspaceSpec)
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -247,6 +292,11 @@ class ArmSpec:
             raise SpecError(f"servo ids must be unique, got {ids}")
         if self.gripper and self.gripper.upper_rad - self.gripper.lower_rad > self.servo.range_rad:
             raise SpecError("gripper travel exceeds the servo range")
+        for pose in ("home", "park"):
+            q = getattr(self, f"{pose}_rad")
+            where = self.workspace_violation(q)
+            if where:
+                raise SpecError(f"workspace: the {pose} pose {q.tolist()} rad puts {where}")
 
     # ---- derived values -------------------------------------------------------------------
     @property
@@ -308,10 +358,45 @@ class ArmSpec:
         return np.array([j.park_rad for j in self.joints] + extra)
 
     def fingerprint(self) -> str:
-        """A short hash of everything that changes behaviour: run dirs record it."""
+        """A short hash of everything that changes behaviour: run dirs record it. The workspace
+        is left out: it is safety configuration that a policy never saw in training, and run
+        dirs written before it existed must keep their fingerprint."""
         import hashlib
 
-        return hashlib.sha256(yamlio.dumps(self.to_dict()).encode()).hexdigest()[:16]
+        d = self.to_dict()
+        del d["workspace"]
+        return hashlib.sha256(yamlio.dumps(d).encode()).hexdigest()[:16]
+
+    def workspace_box_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """(box_min (3,), box_max (3,)) in the base frame: the spec's box, or the bounding box
+        of the reach when the spec gives none."""
+        ws = self.workspace
+        if ws.box_min_m is not None and ws.box_max_m is not None:
+            return np.array(ws.box_min_m), np.array(ws.box_max_m)
+        L = self.links
+        reach = L.upper_arm_m + L.forearm_m + abs(L.tool_forward_m)
+        top = L.base_height_m + L.upper_arm_m + L.forearm_m + abs(L.tool_down_m)
+        return np.array([-reach, -reach, ws.table_z_m]), np.array([reach, reach, top])
+
+    def workspace_violation(self, q_rad: np.ndarray) -> str:
+        """Why joint angles (3,) put the tool or the elbow outside the workspace; "" if inside.
+        The reference check (for validation and tests); hardware.safety has the fast one."""
+        floor = self.workspace.table_z_m + self.workspace.margin_m
+        lo, hi = self.workspace_box_m()
+        for point, p in (
+            ("tool", self.forward_kinematics(q_rad)),
+            ("elbow", self.elbow_position(q_rad)),
+        ):
+            if p[2] < floor:
+                return (
+                    f"the {point} at z={p[2]:.4f} m, below the table plane + margin ({floor:.4f} m)"
+                )
+            if np.any(p < lo) or np.any(p > hi):
+                return (
+                    f"the {point} at {np.round(p, 4).tolist()} m, outside the workspace box "
+                    f"{lo.tolist()}..{hi.tolist()} m"
+                )
+        return ""
 
     # ---- kinematics -----------------------------------------------------------------------
     def forward_kinematics(self, q_rad: np.ndarray) -> np.ndarray:
@@ -324,6 +409,17 @@ class ArmSpec:
         r = L.upper_arm_m * math.sin(a1) + L.forearm_m * math.cos(a12) + L.tool_forward_m
         z = L.base_height_m + L.upper_arm_m * math.cos(a1) - L.forearm_m * math.sin(a12)
         z -= L.tool_down_m
+        return np.array([r * math.cos(yaw), r * math.sin(yaw), z])
+
+    def elbow_position(self, q_rad: np.ndarray) -> np.ndarray:
+        """base_p_elbow (3,) in metres: the elbow axis, which nears the table when the shoulder
+        leans far forward (the workspace guard checks it beside the tool)."""
+        q = np.asarray(q_rad, dtype=float)
+        yaw = self.joints[0].sign * q[0]
+        a1 = self.joints[1].sign * q[1]
+        L = self.links
+        r = L.upper_arm_m * math.sin(a1)
+        z = L.base_height_m + L.upper_arm_m * math.cos(a1)
         return np.array([r * math.cos(yaw), r * math.sin(yaw), z])
 
     def inverse_kinematics(self, base_p_tool: np.ndarray) -> np.ndarray | None:
@@ -372,7 +468,7 @@ class ArmSpec:
             raise SpecError(
                 f"{source}: expected a mapping at the top level, got {type(data).__name__}"
             )
-        allowed = {"name", "joints", "links", "servo", "gripper", "safety"}
+        allowed = {"name", "joints", "links", "servo", "gripper", "safety", "workspace"}
         unknown = sorted(set(data) - allowed)
         if unknown:
             raise SpecError(f"{source}: unknown key(s) {unknown}; valid: {sorted(allowed)}")
@@ -391,6 +487,7 @@ class ArmSpec:
                 if gripper_raw is None
                 else _build(GripperSpec, gripper_raw, f"{source}: gripper"),
                 safety=_build(SafetySpec, data.get("safety", {}), f"{source}: safety"),
+                workspace=_build(WorkspaceSpec, data.get("workspace", {}), f"{source}: workspace"),
             )
         except SpecError as exc:
             msg = str(exc)

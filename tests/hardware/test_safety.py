@@ -1,5 +1,6 @@
-"""Safety: the filter, the host watchdog, e-stop on signals, and the property that no command
-outside the limits or over the step clamp ever reaches a device.
+"""Safety: the filter, the workspace guard, the host watchdog, e-stop on signals, and the property
+that no command outside the limits, over the step clamp or outside the workspace ever reaches a
+device.
 
 The property runs in-process (SafetyFilter -> unit quantisation -> the protocol's real encoder ->
 the emulated device's real decoder and apply path): 2,000 cases for s2r and 1,000 each for feetech
@@ -17,6 +18,7 @@ import sys
 import textwrap
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,21 +29,22 @@ from hypothesis import strategies as st
 from hardware.emulator import AppliedCommand, Emulator, EmulatorConfig, FirmwareCore
 from hardware.emulator.devices import FeetechDevice, MaestroDevice
 from hardware.emulator.dynamics import ServoBank, ServoParams
-from hardware.errors import SafetyError
+from hardware.errors import SafetyError, SpecError
 from hardware.firmware.limits import firmware_limits
 from hardware.joint_calibration import ArmCalibration, nominal_calibration
 from hardware.protocols import PROTOCOLS, s2r
 from hardware.protocols.feetech import goal_packet
 from hardware.protocols.maestro import targets_packet
-from hardware.safety import SafetyFilter, Watchdog
+from hardware.safety import SafetyFilter, Watchdog, WorkspaceGuard
 from hardware.serial_arm import SerialArm, quantise_targets
-from hardware.spec import ArmSpec
+from hardware.spec import DEFAULT_SPEC_PATH, ArmSpec, load_spec
 
 NASTY = [math.nan, math.inf, -math.inf, 1e9, -1e9, 1e300, -1e300, 0.0]
 value_st = st.one_of(st.sampled_from(NASTY), st.floats(allow_nan=True, allow_infinity=True))
 command_st = st.tuples(value_st, value_st, value_st, value_st)
 sequence_st = st.lists(command_st, min_size=1, max_size=8)
 EPS = 1e-9
+ROUNDING_M = 5e-4  # what a device receives is the filter's output rounded to servo units
 
 
 # ---- the filter -----------------------------------------------------------------------------
@@ -81,6 +84,179 @@ def test_filter_refuses_bad_shapes_and_settings(spec: ArmSpec) -> None:
 def test_clamp_is_on_by_default(spec: ArmSpec) -> None:
     f = SafetyFilter(spec)
     assert f.max_step_rad == spec.safety.max_step_rad > 0
+
+
+# ---- the workspace guard ------------------------------------------------------------------------
+SPEC = load_spec()
+GUARD = WorkspaceGuard(SPEC)
+joint_st = st.tuples(
+    *(
+        st.floats(float(lo), float(hi))
+        for lo, hi in zip(SPEC.lower_rad, SPEC.upper_rad, strict=True)
+    )
+)
+actuator_st = st.tuples(
+    *(
+        st.floats(float(lo), float(hi))
+        for lo, hi in zip(SPEC.actuator_lower_rad, SPEC.actuator_upper_rad, strict=True)
+    )
+)
+safe_st = actuator_st.filter(lambda q: GUARD.inside(q))
+unsafe_st = actuator_st.filter(lambda q: not GUARD.inside(q))
+FAST = settings(
+    max_examples=300, deadline=None, database=None, suppress_health_check=list(HealthCheck)
+)
+
+
+def _reference_excess_m(spec: ArmSpec, q: np.ndarray) -> float:
+    """The guard's measure from the spec's own FK (numpy): the reference the fast path matches."""
+    lo, hi = spec.workspace_box_m()
+    floor = spec.workspace.table_z_m + spec.workspace.margin_m
+    points = (spec.forward_kinematics(q[:3]), spec.elbow_position(q[:3]))
+    return max(max(floor - p[2], *(lo - p), *(p - hi)) for p in points)
+
+
+@FAST
+@given(q=joint_st)
+def test_guard_fk_is_the_spec_fk(q: tuple[float, ...]) -> None:
+    qa = np.array(q)
+    assert GUARD.excess_m(qa) == pytest.approx(_reference_excess_m(SPEC, qa), abs=1e-12)
+    assert GUARD.inside(qa) == (SPEC.workspace_violation(qa) == "")
+
+
+def test_the_guard_has_work_to_do_in_the_shipped_spec() -> None:
+    """About one joint-space sample in eight puts the tool under the floor: the guard is not
+    vacuous, and the park and home poses are inside it."""
+    rng = np.random.default_rng(0)
+    q = rng.uniform(SPEC.lower_rad, SPEC.upper_rad, size=(4000, 3))
+    outside = np.mean([not GUARD.inside(x) for x in q])
+    assert 0.05 < outside < 0.3
+    assert GUARD.inside(SPEC.park_rad) and GUARD.inside(SPEC.home_rad)
+
+
+@settings(max_examples=1000, deadline=None, database=None, suppress_health_check=list(HealthCheck))
+@given(start=safe_st, commands=sequence_st)
+def test_random_commands_never_leave_the_workspace(
+    start: tuple[float, ...], commands: list[tuple[float, ...]]
+) -> None:
+    """Arbitrary outputs (NaN, inf, 1e300, anything) from any safe pose: every filtered command
+    keeps the tool and the elbow above the table + margin and inside the box (by the spec's own
+    FK), inside the limits and within one step."""
+    f = SafetyFilter(SPEC)
+    prev = np.array(start)
+    for c in commands:
+        out = f.filter(np.array(c), prev)
+        assert SPEC.workspace_violation(out[:3]) == "", (prev, c, out)
+        assert np.all(out >= SPEC.actuator_lower_rad) and np.all(out <= SPEC.actuator_upper_rad)
+        assert np.all(np.abs(out - prev) <= f.max_step_rad + EPS)
+        prev = out
+
+
+@FAST
+@given(start=unsafe_st, command=command_st)
+def test_from_outside_a_command_never_goes_further_out(
+    start: tuple[float, ...], command: tuple[float, ...]
+) -> None:
+    """An arm switched on where it was left (below the floor) can be driven back, never deeper."""
+    f = SafetyFilter(SPEC)
+    prev = np.array(start)
+    out = f.filter(np.array(command), prev)
+    assert GUARD.excess_m(out) <= GUARD.excess_m(prev) + 1e-12
+
+
+@FAST
+@given(start=safe_st, delta=st.tuples(*[st.floats(-0.25, 0.25)] * 4))
+def test_safe_commands_pass_unchanged(start: tuple[float, ...], delta: tuple[float, ...]) -> None:
+    f = SafetyFilter(SPEC)
+    prev = np.array(start)
+    target = prev + np.array(delta)
+    inside_limits = np.all(target >= SPEC.actuator_lower_rad) and np.all(
+        target <= SPEC.actuator_upper_rad
+    )
+    if not (inside_limits and GUARD.inside(target)):
+        return
+    np.testing.assert_array_equal(f.filter(target, prev), target)
+    assert f.stats.workspace_clamped == 0 and f.stats.step_clamped == 0
+
+
+def test_a_dive_into_the_table_is_held_and_counted() -> None:
+    """Shoulder forward, forearm straight down: the guard shortens the steps, the tool stops on
+    the floor, the gripper still moves, and the stats count every command it changed."""
+    f = SafetyFilter(SPEC)
+    prev = SPEC.actuator_home_rad.copy()
+    dive = np.array([0.0, 1.3, 0.27, SPEC.gripper.closed_rad if SPEC.gripper else 0.0])
+    assert not GUARD.inside(dive)
+    for _ in range(40):
+        prev = f.filter(dive, prev)
+    floor = SPEC.workspace.table_z_m + SPEC.workspace.margin_m
+    tool_z = SPEC.forward_kinematics(prev[:3])[2]
+    assert floor <= tool_z < floor + 0.002  # it stopped on the floor, not short of it
+    assert prev[3] == dive[3]
+    assert f.stats.workspace_clamped > 0
+    assert f.stats.commands == 40
+
+
+@FAST
+@given(start=safe_st)
+def test_the_arm_can_always_be_parked_and_homed(start: tuple[float, ...]) -> None:
+    """``ArmBase.park``/``home`` walk there through the filter: from every safe pose they get
+    there (joints that would dip under the floor wait while the others move)."""
+    for goal in (SPEC.actuator_park_rad, SPEC.actuator_home_rad):
+        f = SafetyFilter(SPEC)
+        q = np.array(start)
+        for _ in range(60):
+            q = f.filter(goal, q)
+        np.testing.assert_allclose(q, goal, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("margin_m: 0.008", "margin_m: -0.01", r"workspace.margin_m must be >= 0, got -0.01"),
+        ("box_min_m: [-0.08, -0.3, 0.0]", "box_min_m: [-0.08, 0.0]", r"box_min_m must be 3"),
+        (
+            "box_min_m: [-0.08, -0.3, 0.0]",
+            "box_min_m: [0.4, -0.3, 0.0]",
+            r"box_min_m \[0.4, -0.3, 0.0\] must be below box_max_m",
+        ),
+        ("  box_min_m: [-0.08, -0.3, 0.0]", "  box_min_m: null", "given together"),
+        ("table_z_m: 0.0", "table_z_m: 0.3", r"box_max_m z \(0.3\) must be above"),
+        ("table_z_m: 0.0", "table_z_m: 0.09", r"the park pose .* below the table plane"),
+        ("box_max_m: [0.3, 0.3, 0.3]", "box_max_m: [0.3, 0.3, 0.1]", "home pose .* outside"),
+        ("margin_m: 0.008", "margin_m: 0.008\n  colour: red", r"unknown key\(s\) \['colour'\]"),
+    ],
+)
+def test_bad_workspace_sections_fail_with_one_line(
+    tmp_path: Path, old: str, new: str, message: str
+) -> None:
+    text = DEFAULT_SPEC_PATH.read_text()
+    assert old in text
+    path = tmp_path / "spec.yaml"
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(SpecError, match=message) as info:
+        ArmSpec.from_yaml(path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+
+
+def test_workspace_is_safety_configuration_outside_the_fingerprint() -> None:
+    """Trained policies check the fingerprint: a tighter guard, or a spec written before the
+    workspace section existed, must not invalidate them."""
+    tighter = replace(SPEC, workspace=replace(SPEC.workspace, margin_m=0.02))
+    assert tighter.fingerprint() == SPEC.fingerprint()
+    old = SPEC.to_dict()
+    del old["workspace"]
+    legacy = ArmSpec.from_dict(old)
+    assert legacy.fingerprint() == SPEC.fingerprint()
+    # no box given: the bounding box of the reach, which never cuts a pose inside the limits
+    lo, hi = legacy.workspace_box_m()
+    rng = np.random.default_rng(1)
+    for q in rng.uniform(SPEC.lower_rad, SPEC.upper_rad, size=(500, 3)):
+        for p in (SPEC.forward_kinematics(q), SPEC.elbow_position(q)):
+            assert np.all(p[:2] >= lo[:2]) and np.all(p <= hi)
+    # a changed behaviour field still changes it
+    assert replace(SPEC, safety=replace(SPEC.safety, max_step_rad=0.2)).fingerprint() != (
+        SPEC.fingerprint()
+    )
 
 
 # ---- the property, in-process: 10,000 cases for s2r, 2,000 each for the others ------------------
@@ -155,6 +331,7 @@ def _check_step(pipe: _Pipeline, command: tuple[float, ...]) -> None:
         q <= spec.actuator_upper_rad + EPS
     ), q
     assert np.all(np.abs(q - pipe.prev_rad) <= pipe.filter.max_step_rad + EPS)
+    assert pipe.filter.guard.excess_m(q) <= ROUNDING_M, q  # tool and elbow in the workspace
     pipe.last_u, pipe.prev_rad = u, q
 
 
@@ -184,6 +361,7 @@ def test_no_unsafe_command_reaches_the_device(spec: ArmSpec, protocol: str, case
     assert (
         pipe.filter.stats.nonfinite > cases // 20 and pipe.filter.stats.limit_clamped > cases // 20
     )
+    assert pipe.filter.stats.workspace_clamped > cases // 50  # the guard was really exercised
 
 
 # ---- the property end to end, through a real pty ----------------------------------------------------
@@ -226,6 +404,7 @@ def test_no_unsafe_command_reaches_the_emulator_over_the_pty(
                 np.testing.assert_allclose(q, s, atol=1e-12)  # sent is what arrived
                 assert np.all(q >= lo - EPS) and np.all(q <= hi + EPS)
                 assert np.all(np.abs(u - prev) <= arm.step_units)
+                assert arm.safety.guard.excess_m(q) <= ROUNDING_M, q
                 prev = u
 
         prop()
