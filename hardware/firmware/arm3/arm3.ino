@@ -23,7 +23,11 @@
 #include <EEPROM.h>
 
 #include "src/arm3_core.h"
+#ifdef ARM3_LIMITS_HEADER
+#include ARM3_LIMITS_HEADER  // a build for another spec: make avr LIMITS=path/to/limits.h
+#else
 #include "src/limits.h"
+#endif
 
 #ifdef ARM3_USE_PCA9685
 #include <Adafruit_PWMServoDriver.h>

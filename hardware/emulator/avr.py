@@ -1,0 +1,346 @@
+"""The arm3 firmware as the chip runs it: the AVR ``.elf`` in simavr, behind a pty, driving the
+emulator's servo dynamics with the pulse widths it really produces.
+
+``AvrEmulator`` presents the interface of ``hardware.emulator.server.Emulator`` that hosts, tests
+and the deploy code use: a context manager, ``.port``, ``.spec``, ``true_positions_rad()``,
+``torque_enabled()``, ``applied()``, ``sync()``, ``brownout()``. The work is split:
+
+* ``hardware/firmware/arm3/sim/arm3_sim.c`` (C against libsimavr) runs the chip in step with wall
+  time, bridges UART0 to its own pty and reports, in simulated microseconds, every pulse each
+  servo pin produced and every byte the UART received and sent;
+* this module turns pulses into servo targets (through the true mounting) and integrates the
+  servo dynamics (``ServoBank``) between events, so the horns move as the measured pulses say.
+
+The ``applied()`` log is rebuilt from the UART traffic: a SET_TARGETS request and the firmware's
+STATE reply (which carries its targets after its own clamps) make one "targets" entry, as the
+Python model logs them; a retransmission the firmware answered without applying is not logged.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+
+from hardware.emulator.dynamics import ServoBank, ServoParams
+from hardware.emulator.firmware import AppliedCommand
+from hardware.emulator.server import EmulatorConfig, FaultConfig
+from hardware.errors import HardwareError
+from hardware.firmware import avr
+from hardware.firmware.limits import UNO_PWM_PINS
+from hardware.joint_calibration import ArmCalibration, nominal_calibration
+from hardware.protocols import s2r
+from hardware.protocols.s2r import S2RFrame, S2RFramer, S2RProtocol
+from hardware.spec import ArmSpec, load_spec
+
+SETTLE_S = 0.05  # a pulse train stops being seen as "on" 25 ms after its last pulse, at worst 45
+
+
+class AvrEmulator:
+    """The AVR firmware in simavr on a pty. Use as a context manager, or ``start()``/``stop()``.
+
+    Only protocol ``s2r`` (it is our firmware), and of ``EmulatorConfig`` only what belongs to the
+    servos (``droop_rad``, ``noise_rad``, ``command_latency_s``, ``seed``): wire timing, the baud
+    rate and its error are the simulated UART's own, and fault injection is the Python
+    emulator's job."""
+
+    protocol = "s2r"
+
+    def __init__(
+        self,
+        spec: ArmSpec | None = None,
+        protocol: str = "s2r",
+        config: EmulatorConfig | None = None,
+        mounting: ArmCalibration | None = None,
+        link: str | os.PathLike[str] | None = None,
+        build_dir: Path | None = None,
+    ) -> None:
+        if protocol != "s2r":
+            raise HardwareError(
+                f"the AVR firmware speaks protocol 's2r', not {protocol!r}; use the python "
+                "firmware (Emulator) for feetech and maestro"
+            )
+        self.spec = spec or load_spec()
+        self.config = config or EmulatorConfig()
+        if self.config.faults != FaultConfig():
+            raise HardwareError(
+                "fault injection is not available with --firmware avr; use the python firmware"
+            )
+        frame = S2RProtocol.unit_frame(self.spec)
+        self.mounting = mounting or nominal_calibration(self.spec, "s2r", frame, arm_id="emulator")
+        self.mounting.check_spec(self.spec)
+        self.mounting.check_protocol("s2r", frame)
+        self.link = Path(link) if link is not None else None
+        self._build_dir = build_dir or avr.BUILD_DIR
+        self.servos = ServoBank(
+            ServoParams.from_spec(
+                self.spec,
+                self.config.droop_rad,
+                self.config.noise_rad,
+                self.config.command_latency_s,
+            ),
+            self.spec.actuator_park_rad,
+            seed=self.config.seed,
+        )
+        n = self.spec.n_actuators
+        park = self.mounting.to_units(self.spec.actuator_park_rad)
+        self._pulse_us = np.array(park, dtype=float)
+        self._powered = np.zeros(n, dtype=bool)
+        self._lock = threading.RLock()
+        self._log: list[AppliedCommand] = []
+        self._rx = S2RFramer(gap_s=0.5)
+        self._tx = S2RFramer(gap_s=0.5)
+        self._requests: dict[int, tuple[S2RFrame, bool]] = {}
+        self._last_rx: tuple[int, int] | None = None
+        self._sim_s = 0.0
+        self._t0 = 0.0
+        self._proc: subprocess.Popen[str] | None = None
+        self._reader: threading.Thread | None = None
+        self._running = False
+        self.device_path = ""
+        self.baud_actual: float | None = None
+        self.min_sp: int | None = None
+        self.pulses_seen = 0
+        self.pulse_error_ns: list[int] = []  # measured - nearest whole µs, for the bench
+        self.crashed: str | None = None
+        # the UART's traffic as the chip saw it: ("RX" | "TX", simulated s, bytes)
+        self.traffic: deque[tuple[str, float, bytes]] = deque(maxlen=100_000)
+
+    # ---- lifecycle ------------------------------------------------------------------------
+    def start(self) -> str:
+        if self._running:
+            return self.port
+        result = avr.build(self.spec, self._build_dir)
+        pins = [str(UNO_PWM_PINS[sid]) for sid in self.spec.actuator_ids]
+        boot_id = (self.config.seed * 7919 + 1) & 0xFFFF or 1
+        self._proc = subprocess.Popen(
+            [str(result.harness), str(result.elf), ",".join(pins), str(boot_id)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            bufsize=1,
+        )
+        self._t0 = time.monotonic()
+        assert self._proc.stdout is not None
+        first = self._proc.stdout.readline().split()
+        if len(first) != 2 or first[0] != "PTY":
+            self._kill()
+            raise HardwareError(f"the simavr harness did not start (said {' '.join(first)!r})")
+        self.device_path = first[1]
+        if self.link is not None:
+            with contextlib.suppress(FileNotFoundError):
+                if self.link.is_symlink():
+                    self.link.unlink()
+            if self.link.exists():
+                self._kill()
+                raise HardwareError(f"--link {str(self.link)!r} exists and is not a symlink")
+            self.link.symlink_to(self.device_path)
+        self._running = True
+        self._reader = threading.Thread(target=self._read_events, name="avr-events", daemon=True)
+        self._reader.start()
+        return self.port
+
+    def stop(self) -> None:
+        self._running = False
+        proc = self._proc
+        if proc is not None and proc.poll() is None and proc.stdin is not None:
+            with contextlib.suppress(OSError, ValueError):
+                proc.stdin.write("Q\n")
+                proc.stdin.close()
+        self._kill()
+        if self._reader is not None:
+            self._reader.join(timeout=5.0)
+            self._reader = None
+        if self.link is not None and self.link.is_symlink():
+            with contextlib.suppress(FileNotFoundError):
+                self.link.unlink()
+
+    def _kill(self) -> None:
+        proc = self._proc
+        if proc is None:
+            return
+        try:
+            proc.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5.0)
+        if proc.stdout is not None:
+            with contextlib.suppress(OSError):
+                proc.stdout.close()
+
+    def __enter__(self) -> AvrEmulator:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    @property
+    def port(self) -> str:
+        return str(self.link) if self.link is not None else self.device_path
+
+    @property
+    def running(self) -> bool:
+        return self._running
+
+    def now_s(self) -> float:
+        """Simulated time of the chip (seconds since power-up), as far as reported."""
+        with self._lock:
+            return self._sim_s
+
+    # ---- events from the harness ------------------------------------------------------------
+    def _read_events(self) -> None:
+        assert self._proc is not None and self._proc.stdout is not None
+        for line in self._proc.stdout:
+            parts = line.split()
+            if not parts:
+                continue
+            with self._lock:
+                self._on_event(parts)
+        self._running = False
+
+    def _advance(self, t_s: float) -> None:
+        """Servo dynamics up to simulated time ``t_s`` with the pulses seen so far (lock held)."""
+        if t_s > self._sim_s:
+            target = self.mounting.from_units(self._pulse_us)
+            self.servos.advance(self._sim_s, t_s, target, self._powered)
+            self._sim_s = t_s
+
+    def _on_event(self, parts: list[str]) -> None:
+        kind = parts[0]
+        if kind == "P":  # a pulse ended
+            t_s, ch, width_ns = int(parts[1]) * 1e-6, int(parts[2]), int(parts[3])
+            self._advance(t_s)
+            width_us = round(width_ns / 1000)
+            self._pulse_us[ch] = width_us
+            self._powered[ch] = True
+            self.pulses_seen += 1
+            if len(self.pulse_error_ns) < 100_000:
+                self.pulse_error_ns.append(width_ns - 1000 * width_us)
+        elif kind == "O":  # a pulse train stopped: the servo goes limp
+            self._advance(int(parts[1]) * 1e-6)
+            self._powered[int(parts[2])] = False
+        elif kind == "T":
+            self._advance(int(parts[1]) * 1e-6)
+            self.min_sp = int(parts[2])
+        elif kind == "RX" and len(parts) == 3:
+            t_s = int(parts[1]) * 1e-6
+            self._advance(t_s)
+            data = bytes.fromhex(parts[2])
+            self.traffic.append(("RX", t_s, data))
+            for f in self._rx.feed(data, t_s):
+                dup = self._last_rx == (f.seq, f.crc)
+                self._last_rx = (f.seq, f.crc)
+                self._requests[f.seq] = (f, dup)
+        elif kind == "TX" and len(parts) == 3:
+            t_s = int(parts[1]) * 1e-6
+            self._advance(t_s)
+            data = bytes.fromhex(parts[2])
+            self.traffic.append(("TX", t_s, data))
+            for f in self._tx.feed(data, t_s):
+                self._on_reply(f, t_s)
+        elif kind == "BAUD":
+            self.baud_actual = float(parts[1])
+        elif kind == "RESET":
+            t_s = int(parts[1]) * 1e-6
+            self._advance(t_s)
+            self._powered[:] = False
+            self.servos.drop_pending()
+            self._requests.clear()
+            self._last_rx = None
+            self._log.append(AppliedCommand(t_s, "reset", self.spec.actuator_ids, (), ()))
+        elif kind == "CRASH":
+            self.crashed = " ".join(parts[1:])
+
+    def _on_reply(self, reply: S2RFrame, t_s: float) -> None:
+        found = self._requests.get(reply.seq)
+        if found is None:
+            return
+        request, dup = found
+        if dup or reply.type != request.type | s2r.REPLY:
+            return
+        ids = self.spec.actuator_ids
+        if request.type == s2r.SET_TARGETS:
+            state = s2r.StatePayload.decode(reply.payload, self.spec.n_actuators)
+            requested = s2r.decode_targets(request.payload)
+            self._log.append(
+                AppliedCommand(t_s, "targets", ids, tuple(requested), state.targets, reply.seq)
+            )
+        elif request.type == s2r.TORQUE:
+            v = request.payload[0]
+            self._log.append(AppliedCommand(t_s, "torque", (v,), (v,), (v,), reply.seq))
+
+    # ---- observation (thread-safe) ----------------------------------------------------------
+    def applied(self, kind: str | None = None) -> list[AppliedCommand]:
+        with self._lock:
+            return [e for e in self._log if kind is None or e.kind == kind]
+
+    def clear_log(self) -> None:
+        with self._lock:
+            self._log.clear()
+
+    def true_positions_rad(self) -> np.ndarray:
+        with self._lock:
+            return self.servos.pos.copy()
+
+    def torque_enabled(self) -> np.ndarray:
+        """Which servos get pulses right now (n_actuators,) bool."""
+        with self._lock:
+            return self._powered.copy()
+
+    def pulse_widths_us(self) -> np.ndarray:
+        """The latest measured pulse width per servo, rounded to whole µs."""
+        with self._lock:
+            return self._pulse_us.copy()
+
+    def stack_peak_bytes(self) -> int | None:
+        """Deepest stack seen so far: RAMEND (0x8FF) minus the lowest stack pointer."""
+        with self._lock:
+            return None if self.min_sp is None else 0x8FF - self.min_sp
+
+    def sync(self, timeout_s: float = 2.0) -> bool:
+        """Wait until the chip has run ``SETTLE_S`` past now: bytes written before the call are
+        processed and a pulse train that stopped is seen as stopped."""
+        goal = (time.monotonic() - self._t0) + SETTLE_S
+        return self.wait_until(lambda: self.now_s() >= goal, timeout_s)
+
+    def brownout(self) -> None:
+        """Supply dip: the chip resets (EEPROM kept: a new boot id), servos limp."""
+        proc = self._proc
+        if proc is None or proc.stdin is None:
+            raise HardwareError("the AVR emulator is not running")
+        proc.stdin.write("B\n")
+        proc.stdin.flush()
+
+    def stats(self) -> dict[str, float]:
+        with self._lock:
+            return {
+                "pulses": self.pulses_seen,
+                "baud_actual": self.baud_actual or 0.0,
+                "stack_peak_bytes": self.stack_peak_bytes() or 0,
+            }
+
+    def wait_until(
+        self, predicate: Callable[[], bool], timeout_s: float = 2.0, poll_s: float = 0.002
+    ) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            if not self._running:
+                break
+            time.sleep(poll_s)
+        return predicate()
