@@ -6,7 +6,14 @@ STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: venv demo test test-all bench lint format firmware-test clean
+.PHONY: venv demo test test-all bench lint format firmware firmware-test avr-deps clean
+
+# The AVR firmware's toolchain and simulator (Debian packages). `make test` installs them when
+# missing and it runs as root (CI does); otherwise the AVR tests skip with a one-line reason.
+AVR_PACKAGES := gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libsimavrparts1
+AVR_READY := command -v avr-g++ >/dev/null && command -v avr-size >/dev/null \
+	&& [ -f /usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h ] \
+	&& [ -f /usr/include/simavr/sim_avr.h ]
 
 venv: $(STAMP)
 
@@ -19,8 +26,22 @@ $(STAMP): pyproject.toml constraints.txt
 demo: $(STAMP)
 	$(BIN)/sim2real demo
 
-test: $(STAMP)
+test: $(STAMP) avr-deps
 	$(BIN)/python -m pytest -n 2 --timeout 600 -q
+
+avr-deps:
+	@if $(AVR_READY); then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		echo "installing the AVR toolchain: $(AVR_PACKAGES)"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_PACKAGES) >/dev/null; \
+	else \
+		echo "note: no AVR toolchain and not root: the AVR firmware tests will skip (sudo make avr-deps)"; \
+	fi
+
+# The sketch for the ATmega328P and its size report (flash, RAM; budget 75 %), then the harness.
+firmware: $(STAMP) avr-deps
+	$(MAKE) -C hardware/firmware/arm3 avr sim
+	$(BIN)/python -m hardware.firmware.avr
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -n 2 --timeout 3600 -q -m ''
