@@ -1,6 +1,7 @@
-"""Domain randomisation in five categories, each a pure (sample, apply) pair with exact restore.
+"""Domain randomisation in six categories, each a pure (sample, apply) pair with exact restore.
 
-``dynamics``, ``visual`` and ``object`` write the MjModel from its nominal snapshot; ``actuation``
+``dynamics``, ``visual``, ``object`` and ``kinematics`` write the MjModel from its nominal
+snapshot; ``actuation``
 and ``sensing`` configure the servo and sensor layers the env runs every step. Presets are YAML
 files of unit-named ranges (``presets/``), chosen with ``gym.make(id, dr="default")``.
 """
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from sim2real.randomization import actuation, dynamics, sensing, visual
+from sim2real.randomization import actuation, dynamics, kinematics, sensing, visual
 from sim2real.randomization import object as object_dr
 from sim2real.randomization.base import ModelIds, ModelSnapshot, Params
 from sim2real.randomization.config import (
@@ -42,6 +43,8 @@ CATEGORIES: dict[str, Category] = {
     "sensing": Category(sensing.sample, None),
     "visual": Category(visual.sample, visual.apply),
     "object": Category(object_dr.sample, object_dr.apply),
+    # last, so adding it left every other category's draws (and old seeds' episodes) as they were
+    "kinematics": Category(kinematics.sample, kinematics.apply),
 }
 assert tuple(CATEGORIES) == CATEGORY_NAMES
 

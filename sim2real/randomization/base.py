@@ -37,6 +37,11 @@ TOUCHED_FIELDS: tuple[str, ...] = (
     "geom_rbound",
     "geom_aabb",
     "geom_friction",
+    "body_pos",
+    "body_quat",
+    "body_ipos",
+    "site_pos",
+    "geom_pos",
 )
 
 

@@ -54,6 +54,11 @@ NEUTRAL: dict[str, dict[str, tuple[float, float]]] = {
         "friction": (1.2, 1.2),
         "init_xy_jitter_m": (0.0, 0.0),
     },
+    "kinematics": {
+        "link_length_delta_m": (0.0, 0.0),
+        "joint_offset_rad": (0.0, 0.0),
+        "tool_offset_delta_m": (0.0, 0.0),
+    },
 }
 CATEGORY_NAMES: tuple[str, ...] = tuple(NEUTRAL)
 _NON_NEGATIVE_SUFFIXES = (
