@@ -38,6 +38,7 @@ _LINK_AXES = (2, 2, 0)
 # geom's own frame (capsules: z; the turret box: z).
 _LINK_GEOMS = ("turret", "upper_arm", "forearm")
 _JOINT_BODIES = ("turret", "upper_arm", "forearm")
+_WRIST_AXIS = np.array([0.0, 1.0, 0.0])  # the passive wrist_level hinge
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,7 @@ def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: 
         model.body_quat[body] = _turn(nominal["body_quat"][body], axis, offset)
     # level gripper: the wrist undoes the pitch offsets its tendon cannot see
     level = -float(k.pitch_signs @ offsets[1:3])
-    model.body_quat[k.wrist_body] = _turn(nominal["body_quat"][k.wrist_body], [0, 1, 0], level)
+    model.body_quat[k.wrist_body] = _turn(nominal["body_quat"][k.wrist_body], _WRIST_AXIS, level)
 
     shift = np.array([tool[0], 0.0, -tool[1]])  # forward is +x, down is -z of the level wrist
     model.site_pos[k.tool_site] = nominal["site_pos"][k.tool_site] + shift
