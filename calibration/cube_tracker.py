@@ -427,7 +427,14 @@ class StereoCubeTracker:
         The same pair handed over twice (a free-running camera that has no new frame yet) is
         not measured again: its estimate is returned, so no measurement is counted twice.
         """
-        if self._last_capture_s is not None and capture_time_s == self._last_capture_s:
+        if not math.isfinite(capture_time_s) or (
+            self._last_capture_s is not None and capture_time_s < self._last_capture_s
+        ):
+            raise ConfigError(
+                f"capture time {capture_time_s!r} s is before the previous frame pair's "
+                f"({self._last_capture_s} s); timestamps must not go backwards"
+            )
+        if capture_time_s == self._last_capture_s:
             assert self._last_estimate is not None
             return self._last_estimate
         if self._last_capture_s is None:
