@@ -99,8 +99,8 @@ def _evaluate(ctx: DemoContext) -> dict[str, Any]:
 
 
 def _export(ctx: DemoContext) -> dict[str, Any]:
+    from sim2real.evaluate.parity import parity_check
     from sim2real.export.exporter import export_policy
-    from sim2real.export.parity import parity_check
 
     path = export_policy(ctx.run_dir, "onnx", ctx.run_dir / "policy.onnx")
     return {"onnx": str(path), "max_abs_action_diff": parity_check(ctx.run_dir, path, 1000)}

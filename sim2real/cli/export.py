@@ -20,17 +20,15 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sim2real.errors import ConfigError
-    from sim2real.export.exporter import SUFFIXES, export_policy
-    from sim2real.export.parity import parity_check
+    from sim2real.evaluate.parity import parity_check
+    from sim2real.export.exporter import export_policy
+    from sim2real.export.formats import get_format
 
     torch.set_num_threads(1)
-    if args.format not in SUFFIXES:
-        from sim2real.errors import UnknownNameError
-
-        raise UnknownNameError("export format", args.format, SUFFIXES)
+    suffix = get_format(args.format).suffix
     if args.check < 0:
         raise ConfigError(f"--check {args.check} must be >= 0")
-    out = args.out or f"{args.run.rstrip('/')}/policy{SUFFIXES[args.format]}"
+    out = args.out or f"{args.run.rstrip('/')}/policy{suffix}"
     path = export_policy(args.run, args.format, out)
     summary: dict[str, object] = {"out": str(path), "format": args.format}
     if args.check:

@@ -14,17 +14,12 @@ from stable_baselines3.dqn.policies import DQNPolicy
 from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 
-from sim2real.errors import UnknownNameError
-from sim2real.export.onnx_io import save_onnx
+from sim2real.export.formats import FORMATS, get_format, load_run_dir
 from sim2real.export.policy import PolicyError, PolicyMeta
-from sim2real.export.program import Op, save_npz
+from sim2real.export.program import Op
 from sim2real.export.torch_policy import TorchPolicy
 
-FORMATS: dict[str, Callable[[str | Path, list[Op], PolicyMeta], Path]] = {
-    "onnx": save_onnx,
-    "numpy": save_npz,
-}
-SUFFIXES: dict[str, str] = {"onnx": ".onnx", "numpy": ".npz"}
+__all__ = ["FORMATS", "build_program", "export_policy", "export_trained"]
 
 
 def _np(t: th.Tensor) -> np.ndarray:
@@ -153,12 +148,19 @@ def build_program(tp: TorchPolicy) -> list[Op]:
     raise PolicyError(f"cannot export policy class {type(policy).__name__}")
 
 
+def export_trained(tp: TorchPolicy, fmt: str, out: str | Path, source: str = "") -> Path:
+    """Write ``tp``'s deterministic policy (normalisation folded in) as ``fmt`` to ``out``."""
+    saver = get_format(fmt).save
+    program = build_program(tp)
+    extra = {**tp.meta.extra, "exported_from": source, "format": fmt}
+    meta = PolicyMeta(**{**tp.meta.__dict__, "source": str(out), "extra": extra})
+    return saver(out, program, meta)
+
+
 def export_policy(run_dir: str | Path, fmt: str, out: str | Path) -> Path:
     """Write the run's deterministic policy (normalisation folded in) as ``fmt`` to ``out``."""
-    if fmt not in FORMATS:
-        raise UnknownNameError("export format", fmt, FORMATS)
-    tp = TorchPolicy.from_run_dir(run_dir)
-    program = build_program(tp)
-    extra = {**tp.meta.extra, "exported_from": str(run_dir), "format": fmt}
-    meta = PolicyMeta(**{**tp.meta.__dict__, "source": str(out), "extra": extra})
-    return FORMATS[fmt](out, program, meta)
+    get_format(fmt)  # an unknown format fails before the run is loaded
+    tp = load_run_dir(run_dir)
+    if not isinstance(tp, TorchPolicy):
+        raise PolicyError(f"run dir {str(run_dir)!r} did not load as a torch policy")
+    return export_trained(tp, fmt, out, source=str(run_dir))

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from hardware.atomic import atomic_write_bytes
 from sim2real.export.policy import Policy, PolicyError, PolicyMeta
 from sim2real.export.program import Op, validate_program
-from sim2real.train.atomic import atomic_write_bytes
 
 OPSET = 17
 IR_VERSION = 8  # onnxruntime >= 1.10 reads it: old builds on a Raspberry Pi too

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import json
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sim2real.errors import RunDirError, Sim2RealError, UnknownNameError
+from sim2real.errors import Sim2RealError
 
 
 class PolicyError(Sim2RealError):
@@ -152,35 +152,9 @@ class Policy(ABC):
 
 
 # ---- loading ----------------------------------------------------------------------------------
-def _load_npz(path: Path) -> Policy:
-    from sim2real.export.program import NumpyPolicy
-
-    return NumpyPolicy.load(path)
-
-
-def _load_onnx(path: Path) -> Policy:
-    from sim2real.export.onnx_io import OnnxPolicy
-
-    return OnnxPolicy.load(path)
-
-
-def _load_run(path: Path) -> Policy:
-    from sim2real.export.torch_policy import TorchPolicy
-
-    return TorchPolicy.from_run_dir(path)
-
-
-LOADERS: dict[str, Callable[[Path], Policy]] = {".npz": _load_npz, ".onnx": _load_onnx}
-
-
 def load_policy(path: str | Path) -> Policy:
-    """A run directory, an exported ``.onnx`` or an exported ``.npz`` policy."""
-    p = Path(path)
-    if p.is_dir():
-        return _load_run(p)
-    if not p.exists():
-        raise RunDirError(f"policy {str(p)!r} does not exist (expected a run dir, .onnx or .npz)")
-    loader = LOADERS.get(p.suffix.lower())
-    if loader is None:
-        raise UnknownNameError("policy file type", p.suffix or p.name, [*LOADERS, "<run dir>"])
-    return loader(p)
+    """A run directory, an exported ``.onnx`` or an exported ``.npz`` policy (the format registry
+    is ``sim2real.export.formats``; it imports this module, hence the late import)."""
+    from sim2real.export.formats import load_policy as load
+
+    return load(path)

@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from hardware.atomic import atomic_write_bytes
 from sim2real.export.policy import Policy, PolicyError, PolicyMeta
-from sim2real.train.atomic import atomic_write_bytes
 
 Op = dict[str, Any]
 NPZ_FORMAT = 1

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from hardware.spec import load_spec
+from sim2real.evaluate.parity import PARITY_TOLERANCE, max_action_diff, sample_observations
 from sim2real.export import PolicyError, export_policy, load_policy
-from sim2real.export.parity import PARITY_TOLERANCE, max_action_diff, sample_observations
 from sim2real.train import resolve_config, train
 
 torch.set_num_threads(1)
