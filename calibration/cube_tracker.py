@@ -138,6 +138,13 @@ def _project(rig: StereoRig, side: int, cam_T_cube: np.ndarray, cube_p: np.ndarr
     return cam.project(cube_p @ T[:3, :3].T + T[:3, 3])
 
 
+def _rigid_inverse(a_T_b: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = a_T_b[:3, :3].T
+    T[:3, 3] = -a_T_b[:3, :3].T @ a_T_b[:3, 3]
+    return T
+
+
 def _pose(params: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = cv2.Rodrigues(params[:3])[0]
@@ -164,18 +171,21 @@ def refine_cube_pose(
     size imposed, a 15 px marker read 1 % small would put the cube ~6 mm too far; free, depth
     comes from the disparity. Returns the pose and the RMS reprojection error (px).
     """
+    # Per image: the face centres and corner offsets (cube frame) of every detected marker,
+    # stacked so each residual is one projectPoints call per image.
     centres: list[np.ndarray] = []
     offsets: list[np.ndarray] = []
     observed: list[np.ndarray] = []
     sides: list[int] = []
     for side, found in enumerate(markers):
-        for m in found:
-            corners = cube.face_corners_m(m.id)
-            centre = cube.cube_T_face(m.id)[:3, 3]
-            centres.append(np.broadcast_to(centre, corners.shape))
-            offsets.append(corners - centre)
-            observed.append(m.corners_px)
-            sides.append(side)
+        if not found:
+            continue
+        corners = [cube.face_corners_m(m.id) for m in found]
+        face_centres = [np.broadcast_to(cube.cube_T_face(m.id)[:3, 3], (4, 3)) for m in found]
+        centres.append(np.concatenate(face_centres))
+        offsets.append(np.concatenate(corners) - centres[-1])
+        observed.append(np.concatenate([m.corners_px for m in found]))
+        sides.append(side)
     obs = np.concatenate(observed).ravel()
 
     def residual(params: np.ndarray) -> np.ndarray:
@@ -197,7 +207,13 @@ def refine_cube_pose(
             dp[k] = steps[k]
             J[:, k] = (residual(params + dp) - r) / steps[k]
         JtJ = J.T @ J
-        delta = np.linalg.solve(JtJ + 1e-9 * np.trace(JtJ) * np.eye(len(params)), -J.T @ r)
+        # cv2.solve, not np.linalg: a 7x7 system must not wait on BLAS threads in a busy loop.
+        ok, delta = cv2.solve(
+            JtJ + 1e-9 * np.trace(JtJ) * np.eye(len(params)), -J.T @ r, flags=cv2.DECOMP_CHOLESKY
+        )
+        if not ok:
+            break
+        delta = delta.ravel()
         trial = params + delta
         r_trial = residual(trial)
         if float(r_trial @ r_trial) >= float(r @ r):
@@ -280,6 +296,7 @@ class StereoCubeTracker:
                 raise ConfigError(f"{name} must be a positive number, got {value!r}")
         if roi_margin < 0 or reacquire_after_s < 0 or yaw_time_constant_s < 0:
             raise ConfigError("roi_margin, reacquire_after_s and yaw_time_constant_s must be ≥ 0")
+        self._cam_T_base = _rigid_inverse(self.base_T_cam)
         self.cube = cube or MarkerCube()
         self.config = tracker or CUBE_TRACKER_CONFIG
         self.roi_margin = roi_margin
@@ -347,11 +364,11 @@ class StereoCubeTracker:
         stereo = fuse_faces(self.cube, faces)
         if self.refine:
             best = min(faces, key=lambda f: f.fit_rms_m)
-            cam_T_base = np.linalg.inv(self.base_T_cam)
+            cam_T_base = self._cam_T_base
             left_T_cube = (
                 cam_T_base
                 @ best.base_T_marker
-                @ np.linalg.inv(self.cube.cube_T_face(best.marker_id))
+                @ _rigid_inverse(self.cube.cube_T_face(best.marker_id))
             )
             left_T_cube[:3, 3] = cam_T_base[:3, :3] @ stereo.position_m + cam_T_base[:3, 3]
             used = (
