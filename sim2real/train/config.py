@@ -322,6 +322,9 @@ def _check_hyperparams(algo: str, hp: Mapping[str, Any]) -> None:
         raise ConfigError(
             f"unknown {algo} hyperparameter(s) {unknown}; valid: {', '.join(sorted(allowed))}"
         )
+    own_check = getattr(cls, "check_hyperparams", None)
+    if own_check is not None:
+        own_check(dict(hp))
     for key in SCHEDULABLE:
         value = hp.get(key)
         if isinstance(value, str):

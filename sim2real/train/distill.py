@@ -117,6 +117,11 @@ class Distill(OnPolicyAlgorithm):
         if _init_setup_model:
             self._setup_model()
 
+    @staticmethod
+    def check_hyperparams(hp: dict[str, Any]) -> None:
+        """What the trainer's config check asks before a run dir is written."""
+        get_teacher(str(hp.get("teacher", "kuka_scripted")))
+
     def _setup_model(self) -> None:
         if (
             not isinstance(self.observation_space, spaces.Dict)

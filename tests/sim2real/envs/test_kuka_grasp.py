@@ -21,8 +21,13 @@ from sim2real.envs import kuka_objects as ko
 from sim2real.envs.kuka_grasp import (
     DISCRETE_ACTIONS,
     IGNORED_DR_KEYS,
+    MAX_SLOTS,
+    PRIVILEGED_FIELDS,
+    PRIVILEGED_INFO_KEY,
+    PRIVILEGED_SCALE_M,
     GraspTask,
     KukaGraspFastEnv,
+    privileged_teacher_action,
 )
 from sim2real.errors import ConfigError, Sim2RealError
 from sim2real.randomization.base import TOUCHED_FIELDS
@@ -383,3 +388,65 @@ def test_dqn_cnn_policy_trains_500_steps_on_the_discrete_env() -> None:
     action, _ = model.predict(obs, deterministic=True)
     assert e.action_space.contains(int(action))
     e.close()
+
+
+# ---- the privileged state (critics and teachers only) -------------------------------------------
+def test_privileged_state_is_in_info_at_reset_and_step_and_never_in_the_observation(
+    env: KukaGraspFastEnv,
+) -> None:
+    family = _one_per_family()
+    obs, info = env.reset(seed=4, options={"objects": [family["box"], family["cylinder"]]})
+    assert isinstance(obs, np.ndarray) and obs.shape == (48, 48, 3)  # pixels only
+    assert env.privileged_space.shape == (len(PRIVILEGED_FIELDS),)
+    for _ in range(3):
+        priv = info[PRIVILEGED_INFO_KEY]
+        assert priv.dtype == np.float32 and env.privileged_space.contains(priv)
+        tgt, objs = env.target_pose(), env.object_positions()
+        slots = priv[5:].reshape(MAX_SLOTS, 4)
+        np.testing.assert_allclose(priv[:3], tgt[:3] / PRIVILEGED_SCALE_M, rtol=1e-6)
+        assert priv[4] == pytest.approx(env.steps / env.max_episode_steps)
+        np.testing.assert_array_equal(slots[:, 0], [1, 1, 0, 0, 0])  # two live objects
+        expected = (objs[:, :2] - tgt[:2]) / PRIVILEGED_SCALE_M
+        np.testing.assert_allclose(slots[:2, 1:3], expected, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(slots[:2, 3], objs[:, 2] / PRIVILEGED_SCALE_M, rtol=1e-5)
+        assert not slots[2:].any()
+        _, _, _, _, info = env.step(1)
+
+
+@pytest.mark.parametrize(
+    ("offset_m", "action"),
+    [
+        ((0.05, 0.01), 1),
+        ((-0.05, 0.02), 2),
+        ((0.01, 0.04), 3),
+        ((-0.01, -0.05), 4),
+        ((0.0, 0.0), 0),
+    ],
+)
+def test_teacher_steers_along_the_larger_error_to_the_object(
+    env: KukaGraspFastEnv, offset_m: tuple[float, float], action: int
+) -> None:
+    env.reset(seed=5, options={"objects": [_one_per_family()["box"]]})
+    x, y = env.target_pose()[:2]
+    env.set_object_pose(0, (x + offset_m[0], y + offset_m[1]))
+    assert privileged_teacher_action(env.privileged_state()) == action
+
+
+def test_teacher_grasps_an_offset_object_with_real_physics(env: KukaGraspFastEnv) -> None:
+    env.reset(seed=6, options={"objects": [_one_per_family()["box"]]})
+    x, y = env.target_pose()[:2]
+    env.set_object_pose(0, (x + 0.045, y - 0.03), _across_fingers_yaw(env.live_objects()[0]))
+    priv = env.privileged_state()
+    actions = []
+    term, reward = False, 0.0
+    while not term:
+        actions.append(privileged_teacher_action(priv))
+        _, reward, term, _, info = env.step(actions[-1])
+        priv = info[PRIVILEGED_INFO_KEY]
+    assert actions.count(1) == 3 and actions.count(4) == 2  # 4.5 cm of +x, 3 cm of -y
+    assert reward == 1.0
+
+
+def test_teacher_rejects_a_state_of_the_wrong_size() -> None:
+    with pytest.raises(ConfigError, match="privileged state has 3 values"):
+        privileged_teacher_action(np.zeros(3))

@@ -110,7 +110,7 @@ def test_continuous_only_algos_refuse_a_discrete_env(algo: str, run_dir: Path) -
         resolve_config("kuka-fast", algo, run_dir)
     msg = str(err.value)
     assert "\n" not in msg and algo in msg and KUKA in msg
-    assert msg.endswith("use one of: a2c, dqn, ppo")
+    assert msg.endswith("use one of: a2c, distill, dqn, ppo")
     assert not run_dir.exists()
     resolve_config("kuka-fast-cont", algo, run_dir)  # the continuous twin takes them
 
