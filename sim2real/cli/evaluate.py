@@ -1,4 +1,5 @@
-"""``sim2real evaluate RUN``: held-out success, a video, the viewer, or the transfer-gap sweep."""
+"""``sim2real evaluate RUN``: held-out success, a video, the viewer, the transfer-gap sweep, or a
+LeRobot dataset of the rollouts."""
 
 from __future__ import annotations
 
@@ -34,6 +35,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sweep-episodes", type=int, default=30, help="held-out episodes per sweep cell (30)"
     )
     parser.add_argument("--out", help="folder for sweep outputs (default RUN/eval/)")
+    parser.add_argument(
+        "--record-dataset",
+        metavar="DIR",
+        help="write the --episodes rollouts as a LeRobot v3.0 dataset (state, action, estimates, "
+        "both cameras as video, task, success)",
+    )
+    parser.add_argument(
+        "--dataset-image-size",
+        default="320x240",
+        metavar="WxH",
+        help="camera size for --record-dataset (320x240); 'none' records no video",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace an existing --record-dataset DIR"
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _print(summary: dict[str, Any], as_json: bool) -> None:
@@ -61,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
             ("--sweep", args.sweep),
             ("--video", args.video),
             ("--render human", args.render == "human"),
+            ("--record-dataset", args.record_dataset),
         )
         if on
     ]
@@ -69,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
     if args.sweep_axis and not args.sweep:
         raise ConfigError("conflicting flags: --sweep-axis needs --sweep")
     target = EvalTarget.load(args.run)
+    progress = not (args.json or args.no_progress)
     if args.sweep:
         return _sweep(args, target)
+    if args.record_dataset:
+        return _record(args, target, progress)
     if args.video or args.render == "human":
         from sim2real.evaluate.video import record_video, view_human
 
@@ -83,7 +104,21 @@ def run(args: argparse.Namespace) -> int:
             summary = {"viewer": "closed", "dr": dr.name, **view_human(target, dr, seeds).summary()}
         _print(summary, args.json)
         return 0
-    _print(evaluate(target, args.episodes, args.dr, args.seed_offset), args.json)
+    _print(evaluate(target, args.episodes, args.dr, args.seed_offset, progress=progress), args.json)
+    return 0
+
+
+def _record(args: argparse.Namespace, target: Any, progress: bool) -> int:
+    from sim2real.evaluate.dataset import parse_image_size, record_dataset
+
+    size = None if args.dataset_image_size == "none" else parse_image_size(args.dataset_image_size)
+    dr = target.dr(args.dr)
+    seeds = target.held_out_seeds(args.episodes, args.seed_offset)
+    path, result, frames = record_dataset(
+        target, args.record_dataset, dr, seeds, size, progress, overwrite=args.overwrite
+    )
+    summary = {"dataset": str(path), "frames": frames, "dr": dr.name, **result.summary()}
+    _print(summary, args.json)
     return 0
 
 
@@ -100,7 +135,7 @@ def _sweep(args: argparse.Namespace, target: Any) -> int:
         args.sweep_episodes,
         base_dr=args.dr,
         seed_offset=args.seed_offset,
-        progress=not args.json,
+        progress=not (args.json or args.no_progress),
     )
     stem = f"sweep-{base.name}"
     csv_path = write_csv(rows, out / f"{stem}.csv")

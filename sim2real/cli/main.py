@@ -34,6 +34,7 @@ COMMANDS: tuple[Command, ...] = (
     Command("arm", "sim2real.cli.arm", "servo arm: emulate, ping, home, jog, calibrate"),
     Command("deploy", "sim2real.cli.deploy", "run a policy on a simulated, emulated or real arm"),
     Command("sysid", "sim2real.cli.sysid", "fit the servo model to logs; write spec + DR centre"),
+    Command("replay", "sim2real.cli.replay", "read a recorded LeRobot dataset back"),
 )
 
 

@@ -96,12 +96,22 @@ def evaluate(
     dr: str | None = None,
     seed_offset: int = 0,
     n_parallel: int = 16,
+    progress: bool = False,
 ) -> dict[str, Any]:
-    """The figures ``sim2real evaluate --json`` prints."""
+    """The figures ``sim2real evaluate --json`` prints (a bar over episodes on a terminal)."""
+    from sim2real.progress import progress_bar
+
     seeds = target.held_out_seeds(episodes, seed_offset)
     dr_config = target.dr(dr)
     t0 = time.perf_counter()
-    result = run_episodes(target.policy, target.env_factory(dr_config), seeds, n_parallel)
+    with progress_bar(len(seeds), "evaluating", "episode", progress) as bar:
+        result = run_episodes(
+            target.policy,
+            target.env_factory(dr_config),
+            seeds,
+            n_parallel,
+            on_episode=lambda _: bar.update(1),
+        )
     return report(target, dr_config, seeds, result, time.perf_counter() - t0)
 
 

@@ -28,6 +28,19 @@ class Episode:
 
 
 @dataclass(frozen=True)
+class Transition:
+    """One env step as a recorder sees it: the observation the action was chosen on."""
+
+    slot: int
+    env: gym.Env[Any, Any]
+    obs: Any
+    action: np.ndarray
+    reward: float
+    info: dict[str, Any]
+    done: bool
+
+
+@dataclass(frozen=True)
 class EvalResult:
     episodes: tuple[Episode, ...]
 
@@ -73,8 +86,12 @@ def run_episodes(
     seeds: Sequence[int],
     n_parallel: int = 16,
     on_step: Callable[[int, gym.Env[Any, Any]], None] | None = None,
+    on_transition: Callable[[Transition], None] | None = None,
+    on_episode: Callable[[Episode], None] | None = None,
 ) -> EvalResult:
-    """One episode per seed; ``on_step(slot, env)`` sees every step (video, viewer)."""
+    """One episode per seed; ``on_step(slot, env)`` sees every step (video, viewer),
+    ``on_transition`` every (obs, action, reward, info) step and ``on_episode`` every finished
+    episode (dataset recording, progress)."""
     n_parallel = max(1, min(n_parallel, len(seeds)))
     envs = [make_env() for _ in range(n_parallel)]
     queue = list(seeds)
@@ -98,20 +115,27 @@ def run_episodes(
             actions = policy(_stack([obs[s] for s in slots]))
             for slot, action in zip(slots, actions, strict=True):
                 env = envs[slot]
+                before = obs[slot]
                 obs[slot], reward, term, trunc, info = env.step(action)
+                if on_transition is not None:
+                    on_transition(
+                        Transition(slot, env, before, action, float(reward), info, term or trunc)
+                    )
                 ep = live[slot]
                 ep["ret"] += float(reward)
                 ep["len"] += 1
                 if on_step is not None:
                     on_step(slot, env)
                 if term or trunc:
-                    results[order[ep["seed"]]] = Episode(
+                    done = results[order[ep["seed"]]] = Episode(
                         seed=ep["seed"],
                         success=bool(info["is_success"]),
                         final_distance_m=float(info.get("distance_m", math.nan)),
                         length=ep["len"],
                         ret=ep["ret"],
                     )
+                    if on_episode is not None:
+                        on_episode(done)
                     del live[slot]
                     if queue:
                         start(slot)

@@ -102,7 +102,9 @@ def run_sweep(
     rows: list[dict[str, Any]] = []
     from tqdm import tqdm
 
-    for values in tqdm(cells, disable=not progress, unit="cell"):
+    from sim2real.progress import progress_enabled
+
+    for values in tqdm(cells, disable=not progress_enabled(progress), unit="cell"):
         cell = dict(zip(names, values, strict=True))
         res = run_episodes(target.policy, target.env_factory(pinned(base, cell)), seeds, n_parallel)
         s = res.summary()

@@ -1,0 +1,25 @@
+"""Recorded rollouts in the formats other tools read (LeRobot v3.0)."""
+
+from sim2real.datasets.lerobot import (
+    CODEBASE_VERSION,
+    DatasetError,
+    DatasetSchema,
+    Feature,
+    LeRobotDataset,
+    LeRobotWriter,
+    arm_features,
+    arm_frames,
+    camera_key,
+)
+
+__all__ = [
+    "CODEBASE_VERSION",
+    "DatasetError",
+    "DatasetSchema",
+    "Feature",
+    "LeRobotDataset",
+    "LeRobotWriter",
+    "arm_features",
+    "arm_frames",
+    "camera_key",
+]
