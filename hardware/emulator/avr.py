@@ -32,7 +32,7 @@ import numpy as np
 
 from hardware.emulator.dynamics import ServoBank, ServoParams
 from hardware.emulator.firmware import AppliedCommand
-from hardware.emulator.server import EmulatorConfig, FaultConfig
+from hardware.emulator.server import EmulatorConfig
 from hardware.errors import HardwareError
 from hardware.firmware import avr
 from hardware.firmware.limits import UNO_PWM_PINS
@@ -53,6 +53,7 @@ class AvrEmulator:
     emulator's job."""
 
     protocol = "s2r"
+    baud = 115_200  # what the sketch asks for; the chip really runs at ``baud_actual``
 
     def __init__(
         self,
@@ -70,7 +71,8 @@ class AvrEmulator:
             )
         self.spec = spec or load_spec()
         self.config = config or EmulatorConfig()
-        if self.config.faults != FaultConfig():
+        f = self.config.faults
+        if f.corrupt_rate or f.corrupt_byte_rate or f.drop_rate or f.delay_rate:
             raise HardwareError(
                 "fault injection is not available with --firmware avr; use the python firmware"
             )

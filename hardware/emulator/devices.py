@@ -329,18 +329,17 @@ class FeetechDevice(EmulatedDevice):
 
 # ---- Pololu Maestro -----------------------------------------------------------------------------
 class MaestroDevice(EmulatedDevice):
-    """A Maestro in compact-protocol mode with Serial CRC enabled (option ``crc``), channel
-    ranges from the spec's pulse range, and a serial timeout (option ``serial_timeout_s``;
-    0 disables it) that switches every channel off, like the Maestro's "timeout" setting."""
+    """A Maestro in compact-protocol mode. Factory settings by default: Serial CRC off (option
+    ``crc``) and no serial timeout (option ``serial_timeout_s``, seconds; > 0 switches every
+    channel off that long after the last command, like the Maestro's "Timeout" setting). Channel
+    ranges are the spec's pulse range, as the hardware guide has the user set them."""
 
     protocol = "maestro"
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.crc = bool(self.options.get("crc", True))
-        self.serial_timeout_s = float(
-            self.options.get("serial_timeout_s", self.spec.safety.watchdog_timeout_s)
-        )
+        self.crc = bool(self.options.get("crc", False))
+        self.serial_timeout_s = float(self.options.get("serial_timeout_s", 0.0))
         frame = self.mounting.frame
         self.ch_min, self.ch_max = frame.unit_min, frame.unit_max
         self.n_channels = max(6, max(self.ids) + 1)

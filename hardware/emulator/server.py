@@ -100,8 +100,8 @@ class EmulatorConfig:
     check_baud: bool | None = None  # None: yes, except for the Maestro (it auto-detects)
     seed: int = 0
     faults: FaultConfig = field(default_factory=FaultConfig)
-    maestro_crc: bool = True
-    maestro_serial_timeout_s: float | None = None  # None: the spec's watchdog timeout
+    maestro_crc: bool = False  # factory setting: "Serial CRC" off
+    maestro_serial_timeout_s: float = 0.0  # factory setting: no serial timeout (0 = off)
     flashed_calibration: ArmCalibration | None = None  # s2r: calibration limits.h was built with
 
     def __post_init__(self) -> None:
@@ -111,6 +111,7 @@ class EmulatorConfig:
             "noise_rad",
             "droop_rad",
             "command_latency_s",
+            "maestro_serial_timeout_s",
         ):
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
@@ -275,8 +276,7 @@ class Emulator:
             "crc": self.config.maestro_crc,
             "flashed_calibration": self.config.flashed_calibration,
         }
-        if self.config.maestro_serial_timeout_s is not None:
-            options["serial_timeout_s"] = self.config.maestro_serial_timeout_s
+        options["serial_timeout_s"] = self.config.maestro_serial_timeout_s
         return DEVICES[self.protocol](
             self.spec,
             self.mounting,

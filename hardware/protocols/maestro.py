@@ -10,7 +10,8 @@ Commands (byte-level spec in docs/protocols.md)::
 Command bytes have bit 7 set and data bytes never do, so a receiver resynchronises on the next
 command byte. With "Serial CRC" enabled on the Maestro, each command is followed by a CRC-7 byte
 (polynomial 0x91, computed LSB first); a command with a bad CRC is ignored and flagged in the
-error register. Replies carry no CRC: the driver checks them for plausibility instead. A target of
+error register. The Maestro ships with Serial CRC *off*, so the driver sends no CRC unless told to
+(``crc=True``, CLI ``--maestro-crc``) after the user enabled it in the Maestro Control Center. Replies carry no CRC: the driver checks them for plausibility instead. A target of
 0 stops the pulses (the servo goes limp), which is how torque is switched off.
 """
 
@@ -120,9 +121,9 @@ class MaestroProtocol(Protocol):
 
     name = "maestro"
     default_baud = 115200
-    description = "Pololu Maestro PWM servo controller (compact protocol, CRC-7)"
+    description = "Pololu Maestro PWM servo controller (compact protocol, optional CRC-7)"
 
-    def __init__(self, *args: Any, crc: bool = True, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, crc: bool = False, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.crc = crc
         self._torque_expected = False

@@ -2,6 +2,7 @@
 
     sim2real arm emulate --protocol s2r --link /tmp/arm3        # mock hardware on a pty
     sim2real arm emulate --plant hard --link /tmp/arm3          # ... of an arm that is off spec
+    sim2real arm emulate --firmware avr --link /tmp/arm3        # ... the AVR .elf in simavr
     sim2real arm ping --port /tmp/arm3 --protocol s2r
     sim2real arm home --port /tmp/arm3 --protocol s2r
     sim2real arm jog --port /tmp/arm3 --protocol s2r            # "elbow +0.1", "home", "q"
@@ -98,6 +99,12 @@ def _add_port(p: argparse.ArgumentParser, calibration: bool = True) -> None:
     p.add_argument("--protocol", default="s2r", choices=sorted(PROTOCOLS), help="servo protocol")
     p.add_argument("--baud", type=int, default=None, help="baud rate (default: the protocol's)")
     p.add_argument("--timeout-ms", type=float, default=50.0, help="reply timeout per try")
+    p.add_argument(
+        "--maestro-crc",
+        action="store_true",
+        help="maestro: send a CRC-7 byte with every command (only if you enabled 'Serial CRC' in "
+        "the Maestro Control Center; the factory setting is off)",
+    )
     if calibration:
         p.add_argument("--calibration", default=None, help="joint calibration YAML")
         p.add_argument("--arm-id", default=None, help="load the calibration saved for this arm id")
@@ -110,6 +117,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser("emulate", help="serve an emulated arm on a pseudo-terminal")
     p.add_argument("--protocol", default="s2r", choices=sorted(PROTOCOLS))
+    p.add_argument(
+        "--firmware",
+        default="python",
+        choices=["avr", "python"],
+        help="python: the firmware model (any protocol, faults); avr: the arm3 .elf in simavr "
+        "(s2r; needs `make avr-deps`)",
+    )
+    p.add_argument(
+        "--maestro-crc",
+        action="store_true",
+        help="maestro: emulate 'Serial CRC' on (factory setting: off)",
+    )
+    p.add_argument(
+        "--maestro-timeout-ms",
+        type=float,
+        default=0.0,
+        help="maestro: its serial timeout, channels off after this long without a command "
+        "(factory setting: 0 = off; the hardware guide sets 250)",
+    )
     p.add_argument(
         "--link", default=None, help="also create this symlink to the pty (e.g. /tmp/arm3)"
     )
@@ -198,6 +224,7 @@ def _open_arm(
         calibration=calibration if calibration is not None else _calibration(args, spec),
         timeout_s=args.timeout_ms / 1000.0,
         push_limits=push_limits,
+        protocol_options={"crc": True} if args.maestro_crc and args.protocol == "maestro" else None,
     )
 
 
@@ -219,7 +246,7 @@ def _csv(text: str | None, n: int, cast: Callable[[str], float]) -> list[float] 
 
 # ---- subcommands ------------------------------------------------------------------------------
 def _emulate(args: argparse.Namespace) -> int:
-    from hardware.emulator import Emulator, EmulatorConfig, FaultConfig
+    from hardware.emulator import FIRMWARES, AvrEmulator, Emulator, EmulatorConfig, FaultConfig
 
     spec = _spec(args)
     proto = get_protocol(args.protocol)
@@ -244,7 +271,12 @@ def _emulate(args: argparse.Namespace) -> int:
             delay_s=args.delay_ms / 1000.0,
             seed=args.seed,
         ),
+        maestro_crc=args.maestro_crc,
+        maestro_serial_timeout_s=args.maestro_timeout_ms / 1000.0,
     )
+    if args.firmware != "python" and args.plant is not None:
+        raise HardwareError(f"--plant needs --firmware python, not {args.firmware!r}")
+    emulator: Emulator | AvrEmulator
     if args.plant is not None:
         from hardware.plant import load_plant
 
@@ -257,7 +289,9 @@ def _emulate(args: argparse.Namespace) -> int:
         plant.check_against(spec)
         emulator = plant.emulator(args.protocol, config, link=args.link)
     else:
-        emulator = Emulator(spec, args.protocol, config, mounting=mounting, link=args.link)
+        emulator = FIRMWARES[args.firmware](
+            spec, args.protocol, config, mounting=mounting, link=args.link
+        )
     stop = False
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -269,7 +303,8 @@ def _emulate(args: argparse.Namespace) -> int:
         port = emulator.start()
         print(port, flush=True)
         print(
-            f"emulating {args.protocol} ({proto.description}) at {emulator.baud} baud on "
+            f"emulating {args.protocol} ({proto.description}, {args.firmware} firmware) at "
+            f"{emulator.baud} baud on "
             f"{emulator.device_path}; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,

@@ -8,6 +8,7 @@ CI installs them (`make avr-deps`) and `.ci/run` fails if any test here was skip
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import time
@@ -275,3 +276,37 @@ def test_a_spec_with_other_limits_gets_its_own_build(quick_spec: ArmSpec, tmp_pa
     assert result.limits_crc == firmware_limits(quick_spec).crc
     assert result.elf.parent.name == f"avr-{result.limits_crc:04x}"
     assert "#define ARM3_HOLD_MS 50" in (result.elf.parent / "limits.h").read_text()
+
+
+def test_cli_emulate_serves_the_avr_firmware(spec: ArmSpec, tmp_path: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    link, log = tmp_path / "arm3", tmp_path / "log.jsonl"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim2real", "arm", "emulate", "--firmware", "avr"]
+        + ["--link", str(link), "--log", str(log)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(root)),
+        cwd=root,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == str(link)
+        with SerialArm(spec, str(link), protocol="s2r", timeout_s=0.2) as arm:
+            assert arm.info is not None and "arm3 firmware" in arm.info.description
+            state = arm.home()
+            np.testing.assert_allclose(state.positions_rad, spec.actuator_home_rad, atol=0.06)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert not link.exists()
+    kinds = [json.loads(line)["kind"] for line in log.read_text().splitlines()]
+    assert "targets" in kinds and kinds[-1] == "torque"

@@ -217,6 +217,11 @@ def test_gen_limits(tmp_path: Path) -> None:
             ["emulate", "--command-latency-ms", "-5"],
             "command_latency_s must be finite and >= 0, got -0.005",
         ),
+        (
+            ["emulate", "--firmware", "avr", "--protocol", "maestro"],
+            "the AVR firmware speaks protocol 's2r', not 'maestro'",
+        ),
+        (["emulate", "--maestro-timeout-ms", "-1"], "maestro_serial_timeout_s must be finite"),
     ],
 )
 def test_bad_input_is_one_line(args: list[str], message: str, tmp_path: Path) -> None:
@@ -252,3 +257,19 @@ def test_wrong_protocol_is_a_no_reply_with_a_hint(
     assert time.monotonic() - t < 10
     proc = _cli("ping", "--port", emu.port, "--protocol", "dynamixel")
     assert proc.returncode == 2 and "invalid choice: 'dynamixel'" in proc.stderr
+
+
+def test_maestro_crc_is_an_option_on_both_ends(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    from hardware.emulator import EmulatorConfig
+
+    factory = make_emulator(spec, "maestro")
+    proc = _cli("ping", "--port", factory.port, "--protocol", "maestro")
+    assert proc.returncode == 0, proc.stderr
+    assert "CRC-7 off" in proc.stdout
+    with_crc = make_emulator(spec, "maestro", EmulatorConfig(maestro_crc=True))
+    proc = _cli("ping", "--port", with_crc.port, "--protocol", "maestro", "--maestro-crc")
+    assert proc.returncode == 0, proc.stderr
+    assert "CRC-7 on" in proc.stdout
+    assert with_crc.stats()["device_crc_errors"] == 0

@@ -5,11 +5,13 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 
+import numpy as np
 import serial
 
-from hardware.emulator import Emulator
+from hardware.emulator import Emulator, EmulatorConfig
 from hardware.protocols import maestro as ms
-from hardware.protocols.maestro import crc7, set_target_cmd, with_crc
+from hardware.protocols.maestro import MaestroProtocol, crc7, set_target_cmd, with_crc
+from hardware.serial_arm import SerialArm
 from hardware.spec import ArmSpec
 
 
@@ -28,7 +30,7 @@ def test_crc7_matches_pololu_examples() -> None:
 def test_emulated_maestro_checks_crc_and_resyncs(
     spec: ArmSpec, make_emulator: Callable[..., Emulator]
 ) -> None:
-    emu = make_emulator(spec, "maestro")
+    emu = make_emulator(spec, "maestro", EmulatorConfig(maestro_crc=True))
     with serial.Serial(emu.port, 115200, timeout=0.5) as port:
         good = with_crc(set_target_cmd(0, 6400), True)
         bad = bytearray(with_crc(set_target_cmd(1, 6400), True))
@@ -52,3 +54,44 @@ def test_emulated_maestro_checks_crc_and_resyncs(
         port.write(with_crc(set_target_cmd(0, 12000), True))
         emu.sync()
         assert emu.applied("targets")[-1].applied == (emu.mounting.frame.unit_max,)
+
+
+def test_defaults_are_the_factory_settings(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    """A Maestro out of the box: Serial CRC off, no serial timeout. The driver and the emulator
+    both default to that, so a new user's arm answers without touching the Control Center."""
+    import inspect
+
+    assert inspect.signature(MaestroProtocol.__init__).parameters["crc"].default is False
+    emu = make_emulator(spec, "maestro")
+    with serial.Serial(emu.port, 115200, timeout=0.5) as port:
+        port.write(set_target_cmd(0, 6400) + ms.get_position_cmd(0))  # no CRC bytes
+        assert struct.unpack("<H", port.read(2))[0] == 6400
+        port.write(bytes((ms.CMD_GET_ERRORS,)))
+        assert struct.unpack("<H", port.read(2))[0] == 0
+    with SerialArm(spec, emu.port, protocol="maestro", timeout_s=0.2) as arm:
+        arm.enable()
+        arm.command(spec.actuator_home_rad)
+        assert emu.sync() and np.all(emu.torque_enabled())
+        # no serial timeout at the factory: the channels keep pulsing with no command
+        assert not emu.wait_until(lambda: not np.any(emu.torque_enabled()), timeout_s=0.4)
+
+
+def test_crc_on_both_sides_when_enabled(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(spec, "maestro", EmulatorConfig(maestro_crc=True))
+    with SerialArm(
+        spec, emu.port, protocol="maestro", timeout_s=0.2, protocol_options={"crc": True}
+    ) as arm:
+        state = arm.move_to(spec.actuator_home_rad, tolerance_rad=0.02)
+        np.testing.assert_allclose(state.positions_rad, spec.actuator_home_rad, atol=0.02)
+    assert emu.stats()["device_crc_errors"] == 0 and emu.applied("targets")
+    # a host without CRC talking to a Maestro with CRC on: every command is refused
+    emu2 = make_emulator(spec, "maestro", EmulatorConfig(maestro_crc=True))
+    with serial.Serial(emu2.port, 115200, timeout=0.2) as port:
+        port.write(set_target_cmd(0, 6400))
+        port.write(set_target_cmd(0, 6400))
+        emu2.sync()
+    assert emu2.applied("targets") == []
