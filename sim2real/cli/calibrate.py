@@ -6,6 +6,7 @@ Subcommands::
     stereo      --left DIR --right DIR | --live --cameras 0,1
     check       --calib stereo.yaml --left DIR --right DIR   measure a known board
     register    --points CSV | --rig stereo.yaml --left DIR --right DIR --targets CSV
+    cube-sheet  --out cube.pdf | cube.png [--dpi 300]   the marker cube's printable net
 
 Every result is computed in memory first and then written file by file atomically under
 ``--out``, so a failed run never leaves a partial calibration behind. ``--json`` prints the
@@ -341,6 +342,46 @@ def _run_register(args: argparse.Namespace) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- cube-sheet
+def _run_cube_sheet(args: argparse.Namespace) -> int:
+    from calibration.cube import FACE_NAMES, MarkerCube
+    from calibration.cube_sheet import cube_sheet, sheet_pdf, sheet_png
+
+    out = Path(args.out)
+    writers: dict[str, Callable[[Any], bytes]] = {
+        ".pdf": sheet_pdf,
+        ".png": lambda sheet: sheet_png(sheet, args.dpi),
+    }
+    if out.suffix.lower() not in writers:
+        raise ConfigError(f"--out {args.out!r}: the sheet is written as .pdf or .png")
+    try:
+        ids = tuple(int(i) for i in args.ids.split(","))
+    except ValueError:
+        raise ConfigError(f"--ids {args.ids!r}: give five integers separated by commas") from None
+    cube = MarkerCube(args.size_m, args.marker_m, ids, args.dictionary)
+    sheet = cube_sheet(cube, args.page)
+    _write_all({out: writers[out.suffix.lower()](sheet)})
+    summary = {
+        "out": str(out),
+        "cube_side_m": cube.size_m,
+        "marker_side_m": cube.marker_m,
+        "dictionary": cube.dictionary,
+        "face_ids": dict(zip(FACE_NAMES, cube.face_ids, strict=True)),
+        "page": args.page,
+        "dpi": args.dpi if out.suffix.lower() == ".png" else None,
+    }
+    _emit(
+        args,
+        summary,
+        [
+            f"wrote {out}: cube side {1000 * cube.size_m:.1f} mm, markers "
+            f"{1000 * cube.marker_m:.1f} mm, {cube.dictionary} ids {list(cube.face_ids)} "
+            "(top, +x, -x, +y, -y); print at 100 %",
+        ],
+    )
+    return 0
+
+
 def _marker_correspondences(
     args: argparse.Namespace,
 ) -> tuple[list[str], np.ndarray, np.ndarray, list[str]]:
@@ -439,6 +480,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="warn above this residual RMS (default 0.005 m)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     p.set_defaults(_calibrate=_run_register)
+
+    p = sub.add_parser("cube-sheet", help="print the marker cube's net (PDF, or PNG at --dpi)")
+    p.add_argument("--out", required=True, help="cube.pdf (vector) or cube.png")
+    p.add_argument("--dpi", type=float, default=300.0, help="PNG resolution (default 300)")
+    p.add_argument("--page", default="a4", choices=("a4", "letter"), help="paper (default a4)")
+    p.add_argument("--size-m", type=float, default=0.025, help="cube side (default 0.025 m)")
+    p.add_argument("--marker-m", type=float, default=0.02,
+                   help="marker black square side (default 0.02 m)")  # fmt: skip
+    p.add_argument("--ids", default="2,3,4,5,6", help="face ids: top,+x,-x,+y,-y (default 2-6)")
+    p.add_argument("--dictionary", default="DICT_4X4_50", help="ArUco dictionary")
+    p.add_argument("--json", action="store_true", help="print the sizes as JSON on stdout")
+    p.set_defaults(_calibrate=_run_cube_sheet)
 
 
 def run(args: argparse.Namespace) -> int:
