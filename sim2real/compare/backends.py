@@ -8,23 +8,62 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
+from sim2real.cli.signals import Terminated
 from sim2real.compare.jobs import run_job
 from sim2real.errors import Sim2RealError
 
 JobDict = dict[str, Any]
 
 
+_worker_interrupted = False  # per worker process: set once a job there was interrupted
+
+
+def _worker_init() -> None:
+    """Ctrl-C raises KeyboardInterrupt in a worker even if it inherited SIGINT ignored, so the
+    run it is training leaves a checkpoint (``train`` does that on KeyboardInterrupt)."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _run_job_until_interrupted(job: JobDict) -> JobDict:
+    """``run_job``, refused once a job in this worker was interrupted: a job the pool had queued
+    already must not start training after Ctrl-C."""
+    global _worker_interrupted
+    if _worker_interrupted:
+        raise KeyboardInterrupt("an earlier job in this worker was interrupted")
+    try:
+        return run_job(job)
+    except KeyboardInterrupt:
+        _worker_interrupted = True
+        raise
+
+
 def run_local(jobs: Sequence[JobDict], workers: int, address: str | None = None) -> list[JobDict]:
-    """A pool of fresh (spawned) processes: torch and MuJoCo state never cross a fork."""
+    """A pool of fresh (spawned) processes: torch and MuJoCo state never cross a fork.
+
+    Ctrl-C at a terminal reaches every worker (one process group). SIGTERM (a scheduler,
+    ``kill``) reaches only this process, which passes it on as SIGINT, so the runs in flight
+    keep their checkpoints either way; no further job starts."""
     if address:
         raise Sim2RealError("--address is for --backend ray; the local backend takes none")
     ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx) as pool:
-        return list(pool.map(run_job, jobs))
+    pool = ProcessPoolExecutor(
+        max_workers=max(1, workers), mp_context=ctx, initializer=_worker_init
+    )
+    try:
+        return list(pool.map(_run_job_until_interrupted, jobs))
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, Terminated):
+            for child in mp.active_children():
+                if child.pid is not None:
+                    os.kill(child.pid, signal.SIGINT)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def run_ray(jobs: Sequence[JobDict], workers: int, address: str | None = None) -> list[JobDict]:

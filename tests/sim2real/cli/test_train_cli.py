@@ -1,4 +1,5 @@
-"""``sim2real train`` end to end: runs, resumes after a real SIGINT, one-line errors."""
+"""``sim2real train`` end to end: runs, resumes after a real SIGINT or SIGTERM, one-line
+errors."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -48,10 +50,19 @@ def test_train_then_resume_with_a_larger_budget(
     assert "already finished 256 steps" in capsys.readouterr().err
 
 
-def test_sigint_leaves_a_checkpoint_that_resume_continues(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"]
+)
+def test_a_signal_leaves_a_checkpoint_that_resume_continues(
+    tmp_path: Path, spawn: Callable[..., subprocess.Popen[str]], sig: int, code: int
+) -> None:
+    """Ctrl-C and SIGTERM (a scheduler, a container stop) both stop a run with a checkpoint at
+    the step they arrived, exit 130/143, and ``--resume`` continues from it. The child gets
+    default dispositions from ``spawn`` (a background job inherits SIGINT ignored) and is killed
+    with its process group however the test ends."""
     run = tmp_path / "run"
     args = _train(run, "--steps", "1000000", "--set", "checkpoint_every=256")
-    proc = subprocess.Popen(
+    proc = spawn(
         [sys.executable, "-m", "sim2real", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -62,9 +73,10 @@ def test_sigint_leaves_a_checkpoint_that_resume_continues(tmp_path: Path) -> Non
     while not rd.checkpoints() and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.2)
     assert rd.checkpoints(), "no checkpoint appeared"
-    os.kill(proc.pid, signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
+    os.kill(proc.pid, sig)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == code, err
+    assert f"interrupted ({'Ctrl-C' if code == 130 else 'SIGTERM'})" in err
     status = rd.read_status()
     assert not status["finished"]
     interrupted_at = rd.latest_checkpoint().steps  # type: ignore[union-attr]
