@@ -23,7 +23,7 @@ _RUN_FLAGS: dict[str, str] = {
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", help="env id or short name, e.g. Sim2Real/Arm3Reach-v0 or reach")
-    parser.add_argument("--algo", help="ddpg, ppo, td3, sac, a2c or dqn")
+    parser.add_argument("--algo", help="ddpg, ppo, td3, sac, a2c, dqn or distill")
     parser.add_argument("--dr", help="DR preset name or YAML path (default: default)")
     parser.add_argument("--steps", type=int, help="total env steps (default: the preset's)")
     parser.add_argument("--seed", type=int, help="training seed (default 0)")

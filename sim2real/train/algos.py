@@ -10,6 +10,7 @@ restores numpy's global RNG, so an instrumented run takes the same steps as a pl
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
+from stable_baselines3.common.buffers import NStepReplayBuffer
 
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.train.distill import Distill
@@ -87,6 +89,18 @@ class DQNDiag(DQN):
             raise ConfigError(f"dqn double_q must be true or false, got {double_q!r}")
         self.double_q = double_q
         super().__init__(*args, **kwargs)
+
+    def _setup_model(self) -> None:
+        # A saved n-step model carries NStepReplayBuffer with its n_steps in replay_buffer_kwargs;
+        # SB3 then warns, wrongly, on every load that n_steps is ignored.
+        kw = self.replay_buffer_kwargs or {}
+        saved_n_step = (
+            self.replay_buffer_class is NStepReplayBuffer and kw.get("n_steps") == self.n_steps
+        )
+        with warnings.catch_warnings():
+            if saved_n_step:
+                warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored")
+            super()._setup_model()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         if self.double_q:

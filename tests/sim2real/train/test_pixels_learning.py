@@ -9,6 +9,7 @@ exercise the whole update path (learning figures belong to the bench and the stu
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -299,8 +300,12 @@ def test_dqn_preset_trains_with_double_q_and_3_step_returns(tmp_path: Path) -> N
         ["n_envs=2", "learning_starts=100", "buffer_size=2000", "batch_size=32"],
     )
     assert set(ALGOS["dqn"].diagnostics) <= set().union(*_logged(run_dir))
-    model, _ = _load(run_dir)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model, _ = _load(run_dir)
+    assert not [w for w in caught if "is ignored" in str(w.message)]  # SB3's spurious warning
     assert isinstance(model, DQNDiag) and model.double_q and model.n_steps == 3
+    assert isinstance(model.replay_buffer, NStepReplayBuffer) and model.replay_buffer.n_steps == 3
     assert model.q_net_target is model.policy.q_net_target  # the stand-in was put back
     assert isinstance(model.q_net.features_extractor, PixelActorExtractor)
     assert model.q_net.features_extractor.shift_px == 4
