@@ -24,7 +24,12 @@ MODULES = [p.stem for p in (REPO / "calibration").glob("*.py") if p.stem != "__i
 def _python(code: str) -> str:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     result = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+        timeout=120,
     )
     return result.stdout.strip()
 

@@ -76,8 +76,14 @@ def firmware_build(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         extra = ["-I", str(FIRMWARE / "tests" / "stubs")] if name == "test_sketch" else None
         cmd = _compile_cmd(out / name, sources, extra)
         procs[name] = (cmd, subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True))
-    for cmd, proc in procs.values():
-        _, err = proc.communicate(timeout=300)
-        if proc.returncode != 0:
-            raise AssertionError(f"g++ failed: {' '.join(cmd)}\n{err}")
+    try:
+        for cmd, proc in procs.values():
+            _, err = proc.communicate(timeout=300)
+            if proc.returncode != 0:
+                raise AssertionError(f"g++ failed: {' '.join(cmd)}\n{err}")
+    finally:  # a failed or timed-out build leaves no compiler running
+        for _, proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
     return {name: out / name for name in bins}

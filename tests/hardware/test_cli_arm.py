@@ -45,9 +45,11 @@ def _one_line_error(err: str) -> str:
     return lines[0]
 
 
-def test_emulate_serves_a_pty_until_sigterm(spec: ArmSpec, tmp_path: Path) -> None:
+def test_emulate_serves_a_pty_until_sigterm(
+    spec: ArmSpec, tmp_path: Path, spawn: Callable[..., subprocess.Popen[str]]
+) -> None:
     link, log = tmp_path / "arm3", tmp_path / "log.jsonl"
-    proc = subprocess.Popen(
+    proc = spawn(
         [
             sys.executable,
             "-m",

@@ -475,11 +475,15 @@ _SIGNAL_SCRIPT = textwrap.dedent(
     ("sig", "code"), [(signal.SIGTERM, 128 + 15), (signal.SIGINT, -signal.SIGINT)]
 )
 def test_signal_holds_then_disables(
-    spec: ArmSpec, make_emulator: Callable[..., Emulator], sig: int, code: int
+    spec: ArmSpec,
+    make_emulator: Callable[..., Emulator],
+    spawn: Callable[..., subprocess.Popen[str]],
+    sig: int,
+    code: int,
 ) -> None:
     emu = make_emulator(spec, "s2r")
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    proc = subprocess.Popen(
+    proc = spawn(
         [sys.executable, "-c", _SIGNAL_SCRIPT, emu.port],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

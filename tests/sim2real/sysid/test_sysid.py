@@ -48,7 +48,11 @@ def _record_excitation(tmp: Path, command_latency_s: float) -> Path:
         assert res.returncode == 0, res.stderr
     finally:
         emulator.terminate()
-        emulator.wait(timeout=30)
+        try:
+            emulator.wait(timeout=30)
+        except subprocess.TimeoutExpired:  # it must not outlive the test whatever happened
+            emulator.kill()
+            emulator.wait()
     return path
 
 
