@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import threading
+from collections.abc import Iterator
+from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,6 +37,54 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="preset override for one algorithm (ppo:n_steps=128) or all (KEY=VALUE)",
     )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _steps_done(run_dir: Path) -> tuple[int, bool]:
+    """(env steps logged, finished) of one run, from the files its trainer writes."""
+    finished = False
+    with contextlib.suppress(OSError, ValueError):
+        finished = bool(json.loads((run_dir / "status.json").read_text()).get("finished"))
+    steps = 0
+    with contextlib.suppress(OSError, ValueError), open(run_dir / "metrics.jsonl", "rb") as fh:
+        fh.seek(max(0, fh.seek(0, os.SEEK_END) - 8192))
+        lines = fh.read().splitlines()
+        if lines:
+            steps = int(json.loads(lines[-1]).get("timesteps", 0))
+    return steps, finished
+
+
+@contextlib.contextmanager
+def watch_runs(runs: Path, names: list[str], steps: int, enabled: bool) -> Iterator[None]:
+    """A bar over every run's env steps, read from the run dirs the workers write (so it works
+    for process and Ray workers alike, with no channel back from them)."""
+    from sim2real.progress import progress_bar, progress_enabled
+
+    if not progress_enabled(enabled):
+        yield
+        return
+    bar = progress_bar(len(names) * steps, "compare", "step", enabled)
+    stop = threading.Event()
+
+    def refresh() -> None:
+        done = [_steps_done(runs / n) for n in names]
+        total = sum(steps if fin else min(s, steps) for s, fin in done)
+        bar.update(total - bar.n)
+        bar.set_postfix_str(f"runs done {sum(fin for _, fin in done)}/{len(names)}")
+
+    def poll() -> None:
+        while not stop.wait(1.0):
+            refresh()
+
+    thread = threading.Thread(target=poll, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+        refresh()  # the final state, however short the run was
+        bar.close()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,7 +107,10 @@ def run(args: argparse.Namespace) -> int:
         eval_episodes=args.eval_episodes,
         overrides=parse_overrides(args.set, algos),
     )
-    files = run_compare(cfg)
+    names = [f"{a}-s{seed}" for a in algos for seed in range(args.seeds)]
+    progress = not (args.json or args.no_progress)
+    with watch_runs(Path(args.out) / "runs", names, args.steps, progress):
+        files = run_compare(cfg)
     summary = json.loads(files["results"].read_text())["summary"]
     if args.json:
         print(json.dumps({"files": {k: str(v) for k, v in files.items()}, "summary": summary}))

@@ -44,6 +44,8 @@ class Stage:
     name: str
     help: str
     run: Callable[[DemoContext], dict[str, Any]]
+    # One line for the closing table, from the stage's figures.
+    summarize: Callable[[dict[str, Any]], str] = lambda figures: ""
 
 
 def _train(ctx: DemoContext) -> dict[str, Any]:
@@ -86,7 +88,7 @@ def _evaluate(ctx: DemoContext) -> dict[str, Any]:
     target = EvalTarget.load(ctx.run_dir)
     out: dict[str, Any] = {}
     for dr in ("default", "shifted"):
-        r = evaluate(target, ctx.episodes, dr)
+        r = evaluate(target, ctx.episodes, dr, progress=ctx.progress)
         out[dr] = {
             "success_rate": r["success_rate"],
             "wilson95": [round(x, 4) for x in r["success_rate_wilson95"]],
@@ -137,16 +139,64 @@ def _deploy_mock(ctx: DemoContext) -> dict[str, Any]:
     }
 
 
+def _pct(rate: float | None) -> str:
+    return "n/a" if rate is None else f"{100 * rate:.1f}%"
+
+
+def _sum_train(f: dict[str, Any]) -> str:
+    env = str(f["env"]).split("/")[-1]
+    return f"{f['algo'].upper()} {env}, {f['steps']:,} steps, {f['steps_per_s']:,} steps/s"
+
+
+def _sum_evaluate(f: dict[str, Any]) -> str:
+    parts = []
+    for dr in ("default", "shifted"):
+        lo, hi = f[dr]["wilson95"]
+        parts.append(f"{dr} {_pct(f[dr]['success_rate'])} [{100 * lo:.1f}, {100 * hi:.1f}]")
+    return f"{', '.join(parts)}; {f['default']['episodes']} held-out eps"
+
+
+def _sum_export(f: dict[str, Any]) -> str:
+    return f"ONNX, max action diff {f['max_abs_action_diff']:.1e} vs torch"
+
+
+def _sum_deploy(f: dict[str, Any]) -> str:
+    return (
+        f"mock arm {_pct(f['success_rate'])} of {f['episodes']}, {f['loop_hz']} Hz, "
+        f"{f['mean_final_distance_mm']} mm"
+    )
+
+
 STAGES: list[Stage] = [
-    Stage("train", "train a PPO reach policy with DR 'default'", _train),
-    Stage("evaluate", "held-out episodes under 'default' and 'shifted'", _evaluate),
-    Stage("export", "ONNX export with a 1,000-observation parity check", _export),
+    Stage("train", "train a PPO reach policy with DR 'default'", _train, _sum_train),
+    Stage("evaluate", "held-out episodes under 'default' and 'shifted'", _evaluate, _sum_evaluate),
+    Stage("export", "ONNX export with a 1,000-observation parity check", _export, _sum_export),
     Stage(
         "deploy",
         "the ONNX policy on the mock arm: emulator on a pty + rendered cameras",
         _deploy_mock,
+        _sum_deploy,
     ),
 ]
+DEMO_RESULTS = "results.json"  # every figure of the last demo, beside its marker
+
+
+def summary_table(results: dict[str, dict[str, Any]], total_s: float) -> str:
+    """The closing table a person reads: one line per stage, its time, the total."""
+    by_name = {s.name: s for s in STAGES}
+    rows = [
+        (name, by_name[name].summarize(figures), f"{figures.get('stage_s', 0.0):.1f} s")
+        for name, figures in results.items()
+    ]
+    rows.append(("total", "", f"{total_s:.1f} s"))
+    w0 = max(len(r[0]) for r in rows)
+    w1 = max(len(r[1]) for r in rows)
+    w2 = max(len(r[2]) for r in rows)
+    rule = f"+-{'-' * w0}-+-{'-' * w1}-+-{'-' * w2}-+"
+    lines = [rule, f"| {'stage':<{w0}} | {'result':<{w1}} | {'time':>{w2}} |", rule]
+    lines += [f"| {a:<{w0}} | {b:<{w1}} | {c:>{w2}} |" for a, b, c in rows[:-1]]
+    lines += [rule, f"| {rows[-1][0]:<{w0}} | {'':<{w1}} | {rows[-1][2]:>{w2}} |", rule]
+    return "\n".join(lines)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -185,10 +235,16 @@ def run(args: argparse.Namespace) -> int:
         figures["stage_s"] = round(time.perf_counter() - t0, 1)
         ctx.results[name] = figures
         if not args.json:
-            print(json.dumps(figures, indent=2), flush=True)
+            print(f"   {stage.summarize(figures)} ({figures['stage_s']} s)", flush=True)
     total = round(time.perf_counter() - t_start, 1)
+    everything = {"stages": ctx.results, "total_s": total}
+    if ctx.out.is_dir():
+        from sim2real.train.atomic import atomic_write_json
+
+        atomic_write_json(ctx.out / DEMO_RESULTS, everything)
     if args.json:
-        print(json.dumps({"stages": ctx.results, "total_s": total}))
+        print(json.dumps(everything))
     else:
-        print(f"== demo finished in {total} s; outputs in {ctx.out}")
+        print(summary_table(ctx.results, total))
+        print(f"outputs in {ctx.out}; every figure in {ctx.out / DEMO_RESULTS} (or use --json)")
     return 0

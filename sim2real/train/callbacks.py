@@ -47,6 +47,8 @@ class ProgressBar(BaseCallback):
     def _on_training_start(self) -> None:
         from tqdm import tqdm
 
+        from sim2real.progress import progress_enabled
+
         self._t0 = time.perf_counter()
         self._n0 = self.model.num_timesteps
         self._bar = tqdm(
@@ -55,7 +57,7 @@ class ProgressBar(BaseCallback):
             unit="step",
             dynamic_ncols=True,
             file=sys.stderr,
-            disable=None if self.enabled else True,  # None: off when stderr is not a terminal
+            disable=not progress_enabled(self.enabled),  # quiet off a terminal and in CI
             smoothing=0.1,
         )
 
