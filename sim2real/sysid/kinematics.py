@@ -94,9 +94,11 @@ def marker_p_tool_m(spec: ArmSpec) -> np.ndarray:
 
 
 def load_marker_log(path: str | Path, spec: ArmSpec) -> MarkerObservations:
-    """A deploy-style npz log → observations. Takes ``ee_marker_m`` (raw plate centre, NaN when
-    unseen) when the log has it; else ``ee_est_m`` (the deploy loop's tool estimate: plate +
-    the spec's plate-to-tool offset turned by the yaw reading), turned back into the plate."""
+    """A deploy-style npz log → observations. Takes ``ee_marker_m`` (raw marker face centre,
+    NaN when unseen) when the log has it; else ``ee_est_m`` (the deploy loop's tool estimate:
+    plate + the spec's plate-to-tool offset turned by the yaw reading) turned back into the
+    plate, in the periods ``ee_seen`` marks (the others hold forward kinematics, not a view).
+    The raw marker is better: ``ee_est_m`` is Kalman-filtered, so it lags a moving wrist."""
     p = Path(path)
     try:
         data = dict(np.load(p))
@@ -109,16 +111,22 @@ def load_marker_log(path: str | Path, spec: ArmSpec) -> MarkerObservations:
     q = np.asarray(data["joints_rad"], dtype=float)[:, : spec.n_joints]
     if "ee_marker_m" in data:
         marker = np.asarray(data["ee_marker_m"], dtype=float)
-    elif "ee_est_m" in data:
-        est = np.asarray(data["ee_est_m"], dtype=float)
+    elif "ee_est_m" in data and "ee_seen" in data:
+        est = np.where(np.asarray(data["ee_seen"], dtype=bool)[:, None], data["ee_est_m"], np.nan)
         yaw = spec.joints[0].sign * q[:, 0]
         dx, dy, dz = marker_p_tool_m(spec)
         c, s = np.cos(yaw), np.sin(yaw)
         marker = est - np.stack([c * dx - s * dy, s * dx + c * dy, np.full_like(c, dz)], axis=1)
+    elif "ee_est_m" in data:
+        raise ConfigError(
+            f"log {str(p)!r} has 'ee_est_m' but no 'ee_seen': its periods without a marker hold "
+            "forward kinematics of the spec, which would pull the fit back to the spec; log "
+            "'ee_marker_m' (raw marker, NaN when unseen) or 'ee_seen' beside it"
+        )
     else:
         raise ConfigError(
-            f"log {str(p)!r} has no wrist-marker observations ('ee_marker_m' or 'ee_est_m'): "
-            "record it with both cameras on (sim2real deploy --log)"
+            f"log {str(p)!r} has no wrist-marker observations ('ee_marker_m', or 'ee_est_m' with "
+            "'ee_seen'): record it with both cameras on (sim2real deploy --log)"
         )
     if len(marker) != len(q):
         raise ConfigError(f"log {str(p)!r}: {len(marker)} marker rows but {len(q)} joint readings")

@@ -94,8 +94,12 @@ def _write_log(path: Path, obs: MarkerObservations, key: str, spec: ArmSpec) -> 
         off = np.stack([c * dx - s * dy, s * dx + c * dy, np.full_like(c, dz)], axis=1)
         ee = obs.marker_m + off
     ee = ee.copy()
-    ee[5:9] = np.nan  # periods without a detection
-    np.savez(path, t_s=np.arange(len(q)) * 0.05, joints_rad=np.c_[q, np.zeros(len(q))], **{key: ee})
+    seen = np.ones(len(q), dtype=bool)
+    seen[5:9] = False  # periods without a detection: NaN raw, forward kinematics in ee_est_m
+    ee[5:9] = np.nan if key == "ee_marker_m" else [SPEC.forward_kinematics(x) for x in q[5:9]]
+    extra = {"ee_seen": seen} if key == "ee_est_m" else {}
+    joints = np.c_[q, np.zeros(len(q))]
+    np.savez(path, t_s=np.arange(len(q)) * 0.05, joints_rad=joints, **{key: ee}, **extra)
     return path
 
 
@@ -143,7 +147,11 @@ def test_a_log_without_marker_observations_is_a_one_line_error(tmp_path: Path) -
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert "has no wrist-marker observations" in lines[0] and str(log) in lines[0]
     assert not out.exists() and not (tmp_path / "fitted.plant.yaml").exists()
+    est_only = tmp_path / "est.npz"
+    np.savez(est_only, joints_rad=np.zeros((30, 4)), ee_est_m=np.zeros((30, 3)))
+    with pytest.raises(ConfigError, match=r"has 'ee_est_m' but no 'ee_seen'"):
+        load_marker_log(est_only, SPEC)
     all_nan = tmp_path / "unseen.npz"
-    np.savez(all_nan, joints_rad=np.zeros((30, 4)), ee_est_m=np.full((30, 3), np.nan))
+    np.savez(all_nan, joints_rad=np.zeros((30, 4)), ee_marker_m=np.full((30, 3), np.nan))
     with pytest.raises(ConfigError, match=r"0 periods with a wrist-marker observation"):
         load_marker_log(all_nan, SPEC)
