@@ -134,7 +134,7 @@ def main() -> int:
     ref = out.parent / "lerobot-pick-ref.npz"
     n_ref = reference_frames(out, ref)
     check = subprocess.run(
-        [str(python), str(ROOT / "bench" / "lerobot_check.py"), str(out), str(ref)],
+        [str(python), str(ROOT / "bench" / "support" / "lerobot_check.py"), str(out), str(ref)],
         capture_output=True,
         text=True,
     )

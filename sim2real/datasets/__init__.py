@@ -10,6 +10,7 @@ from sim2real.datasets.lerobot import (
     arm_features,
     arm_frames,
     camera_key,
+    split_episodes,
 )
 
 __all__ = [
@@ -22,4 +23,5 @@ __all__ = [
     "arm_features",
     "arm_frames",
     "camera_key",
+    "split_episodes",
 ]

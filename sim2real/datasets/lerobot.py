@@ -19,11 +19,13 @@ and renamed into place when it is complete: a crash never leaves half a dataset.
 
 The writer takes a dict of per-step arrays per episode, so that any loop that logs steps (the
 evaluation rollouts, the deploy loop) can record: ``arm_features`` / ``arm_frames`` give the
-standard arm keys (joint state, action, named position estimates, cameras).
+standard arm keys (joint state, action, named position estimates, cameras), and
+``split_episodes`` cuts a flat per-period log (the deploy loop's) into episodes.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -177,6 +179,24 @@ def arm_frames(
         frames[f"observation.{name}_pos"] = np.asarray(value)
     frames.update({k: np.asarray(v) for k, v in (extras or {}).items()})
     return frames
+
+
+def split_episodes(
+    log: Mapping[str, np.ndarray], episode_key: str = "episode"
+) -> list[dict[str, np.ndarray]]:
+    """A flat per-step log (one row per control period, an episode number per row, as the
+    deploy loop's ``LoopLog`` saves it) as one dict of per-step arrays per episode, in order.
+
+    Keys whose length differs from the episode column (per-run values) are left out.
+    """
+    if episode_key not in log:
+        raise DatasetError(f"log has no {episode_key!r} column; keys: {sorted(log)}")
+    ep = np.asarray(log[episode_key])
+    n = len(ep)
+    per_step = {k: np.asarray(v) for k, v in log.items() if np.ndim(v) >= 1 and len(v) == n}
+    starts = np.flatnonzero(np.r_[True, ep[1:] != ep[:-1]]) if n else np.array([], int)
+    bounds = [*starts.tolist(), n]
+    return [{k: v[a:b] for k, v in per_step.items()} for a, b in itertools.pairwise(bounds)]
 
 
 # ---- statistics --------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from sim2real.datasets import (
     arm_features,
     arm_frames,
     camera_key,
+    split_episodes,
 )
 
 HW = (48, 64)
@@ -185,3 +186,33 @@ def test_schema_rejects_reserved_and_odd_sizes() -> None:
         DatasetSchema(20, {"index": Feature((1,), "int64")})
     with pytest.raises(Exception, match="even"):
         DatasetSchema(20, {}, cameras=CAMS, image_hw=(47, 64))
+
+
+def test_a_flat_loop_log_becomes_episodes_in_a_dataset(tmp_path: Path) -> None:
+    """The deploy loop's log shape: one row per period, an episode column, per-run extras."""
+    rng = np.random.default_rng(5)
+    episode = np.repeat([0.0, 1.0, 2.0], [4, 6, 3])  # npz logs store it as float
+    log = {
+        "episode": episode,
+        "joints_rad": rng.normal(size=(13, 4)),
+        "action": rng.uniform(-1, 1, size=(13, 4)),
+        "ee_est_m": rng.normal(size=(13, 3)),
+        "goal_est_m": rng.normal(size=(13, 3)),
+        "cube_est_m": rng.normal(size=(13, 3)),
+        "spec_fingerprint": np.array([1.0, 2.0]),  # not per step: left out
+    }
+    parts = split_episodes(log)
+    assert [len(p["action"]) for p in parts] == [4, 6, 3]
+    assert all("spec_fingerprint" not in p for p in parts)
+    with LeRobotWriter(tmp_path / "ds", _schema(cameras=())) as w:
+        for p, ok in zip(parts, (True, False, True), strict=True):
+            est = {"tool": p["ee_est_m"], "goal": p["goal_est_m"], "cube": p["cube_est_m"]}
+            extras = {"next.success": np.arange(len(p["action"])) == len(p["action"]) - 1}
+            w.add_episode(arm_frames(p["joints_rad"], p["action"], est, extras), "pick", ok)
+    ds = LeRobotDataset.open(tmp_path / "ds")
+    assert [e.length for e in ds.episodes] == [4, 6, 3]
+    np.testing.assert_allclose(
+        ds.episode_frames(1)["observation.state"], log["joints_rad"][4:10], rtol=1e-6
+    )
+    with pytest.raises(DatasetError, match="no 'episode' column"):
+        split_episodes({"action": log["action"]})

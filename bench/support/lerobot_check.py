@@ -1,5 +1,6 @@
-"""Runs inside the separate LeRobot venv (see bench/lerobot_dataset.py): loads a dataset with
-LeRobot's own ``LeRobotDataset`` and prints one JSON object of what it found.
+"""Runs inside the separate LeRobot venv, started by bench/lerobot_dataset.py (``make bench``
+does not run this folder): loads a dataset with LeRobot's own ``LeRobotDataset`` and prints one
+JSON object of what it found.
 
 Usage: lerobot_check.py DATASET_DIR REFERENCE.npz
 REFERENCE.npz holds, per checked (episode, frame, camera), the frame our own reader decoded;
