@@ -25,7 +25,7 @@ from sim2real.envs.kuka_grasp import PRIVILEGED_INFO_KEY, privileged_teacher_act
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.evaluate import EvalTarget, evaluate
 from sim2real.export import load_policy
-from sim2real.train import ALGOS, RunDir, resolve_config, train
+from sim2real.train import ALGOS, RunDir, resolve_config, resume, train
 from sim2real.train.algos import DQNDiag, _DoubleQTarget
 from sim2real.train.asymmetric import AsymmetricActorCriticPolicy, PrivilegedCriticExtractor
 from sim2real.train.augment import PIXELS_KEY, PRIVILEGED_KEY, PixelActorExtractor, random_shift
@@ -199,6 +199,7 @@ def test_asymmetric_ppo_trains_and_its_actor_sees_pixels_only(tmp_path: Path) ->
     np.testing.assert_array_equal(actions[:, 0], greedy)
     result = evaluate(EvalTarget.load(run_dir), episodes=3, dr="none")
     assert result["episodes"] == 3
+    assert resume(run_dir, steps=384, progress=False).steps_done == 384  # privileged envs again
 
 
 def test_privileged_critic_and_augment_are_checked_before_anything_is_written(
@@ -245,6 +246,11 @@ def test_distill_labels_every_visited_state_with_the_teacher_and_evaluates_like_
     assert model.teacher == "kuka_scripted" and model._data == {}  # the dataset is not saved
     result = evaluate(EvalTarget.load(run_dir), episodes=3, dr="none")
     assert result["algo"] == "distill" and result["episodes"] == 3
+
+    # A resumed run continues the step count with a new aggregated dataset.
+    assert resume(run_dir, steps=384, progress=False).steps_done == 384
+    sizes = [r["train/dataset_size"] for r in _logged(run_dir) if "train/dataset_size" in r]
+    assert sizes == [128.0, 256.0, 128.0]
 
 
 def test_distill_aggregate_stores_frames_with_the_teachers_labels(tmp_path: Path) -> None:
