@@ -3,7 +3,7 @@
 
 LeRobot needs numpy >= 2 and Python >= 3.12; the standalone ``lerobot-dataset`` package reads the
 same v3.0 format on Python 3.11 but pins packaging < 26, which clashes with this venv. So the
-check runs in a separate venv under ``.cache/lerobot-venv`` (made on first run, ~4 GB: PyPI's
+check runs in a separate venv under ``.cache/lerobot-venv`` (made on first run, 7.4 GB: PyPI's
 torch for Linux carries the CUDA libraries, and torchvision 0.23 is the last with the PyAV
 video reader that ``lerobot-dataset`` falls back to without torchcodec).
 
