@@ -1,0 +1,123 @@
+"""The deploy profile installs and runs without the simulator or the learner.
+
+A fresh venv under ``.cache/`` gets ``pip install '.[deploy]'`` and nothing else (pip talks to the
+package index: this test needs network, hence slow). Then: none of torch, mujoco, robosuite, ray or
+stable-baselines3 is importable there; that venv's ``sim2real arm emulate`` serves an emulated
+bus on a pty and its ``sim2real arm ping`` talks to it; a command that needs another extra says
+which one in one line.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+VENV = REPO / ".cache" / "lean-deploy-venv"
+FORBIDDEN = ("torch", "mujoco", "robosuite", "ray", "stable_baselines3")
+
+pytestmark = pytest.mark.slow
+
+
+def _source_copy(dest: Path) -> Path:
+    """The working tree's files (tracked and new, not ignored) in ``dest``: pip builds in the
+    source folder, and the repository must not get a ``build/`` from a test."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-co", "--exclude-standard", "-z"],
+        capture_output=True, cwd=REPO, check=True,
+    ).stdout.decode().split("\0")  # fmt: skip
+    for rel in filter(None, listed):
+        src = REPO / rel
+        if src.is_file():
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+    return dest
+
+
+@pytest.fixture(scope="module")
+def lean_bin(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The venv's bin folder, built from scratch with the deploy extra only."""
+    source = _source_copy(tmp_path_factory.mktemp("source"))
+    shutil.rmtree(VENV, ignore_errors=True)
+    subprocess.run([sys.executable, "-m", "venv", str(VENV)], check=True)
+    bin_dir = VENV / "bin"
+    pip = [str(bin_dir / "python"), "-m", "pip", "install", "--quiet"]
+    subprocess.run([*pip, "--upgrade", "pip"], check=True, timeout=600)
+    res = subprocess.run(
+        [*pip, "-c", str(REPO / "constraints.txt"), f"{source}[deploy]"],
+        capture_output=True, text=True, timeout=1800,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    return bin_dir
+
+
+def _clean_env() -> dict[str, str]:
+    """No PYTHONPATH: the lean venv must find everything in its own site-packages."""
+    return {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+
+
+def test_deploy_profile_has_no_simulator_or_learner(lean_bin: Path, tmp_path: Path) -> None:
+    code = (
+        "import importlib.util as u\n"
+        f"print(sorted(m for m in {FORBIDDEN!r} if u.find_spec(m) is not None))"
+    )
+    out = subprocess.run(
+        [str(lean_bin / "python"), "-c", code],
+        capture_output=True, text=True, env=_clean_env(), cwd=tmp_path, check=True,
+    )  # fmt: skip
+    assert out.stdout.strip() == "[]"
+
+
+def test_deploy_profile_imports_the_arm_side(lean_bin: Path, tmp_path: Path) -> None:
+    """What the deploy loop on a serial arm uses from hardware and calibration imports here."""
+    modules = [
+        "hardware.serial_arm", "hardware.safety", "hardware.spec", "hardware.joint_calibration",
+        "hardware.emulator", "hardware.servo_model", "calibration.capture",
+        "calibration.triangulate", "calibration.kalman", "calibration.markers",
+        "sim2real.observation", "sim2real.export.formats",
+    ]  # fmt: skip
+    code = "".join(f"import {m}\n" for m in modules)
+    res = subprocess.run(
+        [str(lean_bin / "python"), "-c", code],
+        capture_output=True, text=True, env=_clean_env(), cwd=tmp_path,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+
+
+def test_emulate_and_ping_in_the_deploy_profile(
+    lean_bin: Path, tmp_path: Path, spawn: Callable[..., subprocess.Popen[Any]]
+) -> None:
+    link = tmp_path / "arm"
+    emulator = spawn(
+        [str(lean_bin / "sim2real"), "arm", "emulate", "--protocol", "s2r", "--link", str(link),
+         "--duration-s", "300"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_clean_env(),
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert emulator.stdout is not None
+    assert emulator.stdout.readline().strip() == str(link), (
+        emulator.stderr.read() if emulator.stderr else ""
+    )
+    ping = subprocess.run(
+        [str(lean_bin / "sim2real"), "arm", "ping", "--port", str(link), "--protocol", "s2r"],
+        capture_output=True, text=True, env=_clean_env(), cwd=tmp_path, timeout=120,
+    )  # fmt: skip
+    assert ping.returncode == 0, ping.stderr
+    assert ping.stdout.strip()
+
+
+def test_a_command_of_another_profile_names_its_extra(lean_bin: Path, tmp_path: Path) -> None:
+    res = subprocess.run(
+        [str(lean_bin / "sim2real"), "train", "--env", "reach", "--steps", "8"],
+        capture_output=True, text=True, env=_clean_env(), cwd=tmp_path, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "pip install 'sim2real[" in lines[0], res.stderr
