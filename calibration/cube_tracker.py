@@ -263,8 +263,11 @@ class StereoCubeTracker:
 
     ``base_T_cam`` maps the left camera frame to the arm base. A face counts only when its id is
     found once in each image, its corners lie within ``max_epipolar_px`` of their epipolar lines
-    and the triangulated corners fit a square of the printed side to ``max_fit_rms_m``; a frame
-    pair whose faces disagree on the centre by more than ``max_spread_m`` is a miss.
+    and the triangulated corners fit a square of the printed side to ``max_fit_rms_m``. With
+    ``refine`` (default) the whole cube is then fitted to every detected corner in both images
+    (:func:`refine_cube_pose`); a fit worse than ``max_reprojection_px`` (a marker glued turned,
+    a false detection) falls back to the per-face average, and a frame pair whose faces disagree
+    there on the centre by more than ``max_spread_m`` is a miss.
     """
 
     def __init__(
@@ -291,6 +294,7 @@ class StereoCubeTracker:
             ("max_epipolar_px", max_epipolar_px),
             ("max_fit_rms_m", max_fit_rms_m),
             ("max_spread_m", max_spread_m),
+            ("max_reprojection_px", max_reprojection_px),
         ):
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"{name} must be a positive number, got {value!r}")

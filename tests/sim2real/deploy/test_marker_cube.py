@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from calibration.cube import wrap_yaw
+from calibration.cube import MarkerCube, wrap_yaw
 from calibration.cube_tracker import StereoCubeTracker, StereoSeamTracker
 from calibration.errors import CalibrationError, ConfigError
 from calibration.markers import ArucoMarkerDetector
@@ -141,7 +141,9 @@ def test_a_cube_never_seen_is_reported_not_crashed_on(
 def test_cube_markers_leave_the_cube_physics_unchanged(spec: ArmSpec) -> None:
     plain = names.build_model(spec, "pick", markers=False)
     marked = names.build_model(spec, "pick", markers=True)
-    assert "cube_marker_" not in names.build_mjcf(spec, "pick")
+    for scene in names.SCENES:  # the training scenes carry no marker at all
+        assert "aruco_" not in names.build_mjcf(spec, scene)
+    assert MarkerCube() == names.MARKER_CUBE  # the sheet's and the tracker's defaults
     for m in (plain, marked):
         assert m.body(names.CUBE_BODY).mass[0] == pytest.approx(0.03)
     np.testing.assert_allclose(
