@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from hardware.spec import ArmSpec, load_spec
+from sim2real.envs.contract import DeployContract
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.model import ArmTwin, RigSpec, build_model
 from sim2real.observation import (
@@ -88,6 +89,8 @@ class Task(ABC):
     # The gripper can hide the task points (a cube in its fingers): the sensor model drops them
     # out near the tool and reports how long they have been blind (``Sensed.blind_s``).
     occludable: ClassVar[bool] = False
+    # What the task needs outside the simulator (``sim2real.envs.contract``); None: sim only.
+    contract: ClassVar[type[DeployContract] | None] = None
 
     @abstractmethod
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:

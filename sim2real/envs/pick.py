@@ -9,6 +9,7 @@ import numpy as np
 
 from sim2real import model as names
 from sim2real.envs.base import START_DEFAULT, START_HELD, Sensed, Task, register_task
+from sim2real.envs.contract import DeployContract, Outcome, Percept, View
 from sim2real.errors import ConfigError
 from sim2real.observation import ObsField
 
@@ -44,6 +45,116 @@ def lift_goal(cube_rest_m: np.ndarray) -> np.ndarray:
     return np.asarray(cube_rest_m, dtype=float) + (0.0, 0.0, LIFT_M)
 
 
+def sample_cube_pose(rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """Where a person puts the cube down: (xy (2,) in m, yaw in rad), in front of the arm.
+    The env and the mock world draw from this one distribution (in this order)."""
+    radius = rng.uniform(0.12, 0.19)
+    angle = rng.uniform(-0.5, 0.5)
+    yaw = rng.uniform(-np.pi / 4, np.pi / 4)
+    return radius * np.array([np.cos(angle), np.sin(angle)]), float(yaw)
+
+
+SUCCESS_M = 0.02
+BLIND_JUDGE_S = 0.5  # a real arm: a cube unseen this long is judged by the gripper, not the camera
+DROPPED_FROM_M = 0.02  # a cube that was this high and is back on the table was dropped
+HOLD_MARGIN_RAD = 0.1  # gripper reading this far open of "closed" while commanded closed: holding
+
+
+class PickContract(DeployContract):
+    """Outside the simulator: the cube is wherever the mock world (or a person) put it; the
+    episode starts once it is seen and still, and latches the lift goal above that sighting.
+    Success is the cube within 2 cm of the lift goal at the end: from the truth in sim and mock;
+    on a real arm from the cube tracker, or, while the fingers hide it, from the tool position
+    when the gripper reads blocked (holding something) while commanded closed."""
+
+    task = "pick"
+    objects = ("cube",)
+
+    def setup(self) -> None:
+        self.goal = np.zeros(3)
+        self._true_goal: np.ndarray | None = None
+        self._rest_z_m = 0.0
+        self._distance_m = float("nan")
+        self._lift_m = 0.0
+        self._max_lift_m = 0.0
+        self._grasped_ever = False
+        self._grasped_now = False
+        self._blind_periods = 0
+        self._periods = 0
+        self._max_blind_s = 0.0
+
+    def placement(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        xy, yaw = sample_cube_pose(rng)
+        return {"cube": np.array([xy[0], xy[1], yaw])}
+
+    def begin(self, percept: Percept) -> None:
+        cube = percept.position("cube")
+        assert cube is not None
+        self.goal = lift_goal(cube)
+
+    def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
+        tool, cube = percept.tool_m, percept.position("cube")
+        assert tool is not None and cube is not None
+        blind = percept.blind_s("cube")
+        self._periods += 1
+        self._blind_periods += int(blind > 0.0)
+        self._max_blind_s = max(self._max_blind_s, blind)
+        return {
+            "ee_pos": tool,
+            **cube_readings(tool, cube, blind),
+            "goal_pos": self.goal,
+            "goal_delta": self.goal - cube,
+        }
+
+    def goal_m(self, percept: Percept, step: int) -> np.ndarray | None:
+        return self.goal
+
+    def _holding(self, view: View) -> bool:
+        grip, commanded_rad = self.spec.gripper, view.commanded_rad
+        if grip is None or commanded_rad is None or len(view.actuators_rad) <= self.spec.n_joints:
+            return False
+        n = self.spec.n_joints
+        span = grip.open_rad - grip.closed_rad
+        commanded_closed = (commanded_rad[n] - grip.closed_rad) / span < 0.25
+        reading_open = (view.actuators_rad[n] - grip.closed_rad) * np.sign(span) > HOLD_MARGIN_RAD
+        return bool(commanded_closed and reading_open)
+
+    def score(self, view: View, step: int) -> str | None:
+        cube = view.objects["cube"]
+        blind = view.blind_s.get("cube", 0.0) > BLIND_JUDGE_S
+        if not view.truth and blind and self._holding(view):
+            cube = view.tool_m  # in the fingers, out of sight
+        if self._true_goal is None:  # the first judged period: where the cube rests
+            self._true_goal = lift_goal(cube) if view.truth else self.goal
+            self._rest_z_m = float(cube[2])
+        grasped = view.grasped if view.grasped is not None else self._holding(view)
+        self._grasped_now = bool(grasped)
+        self._grasped_ever |= self._grasped_now
+        self._lift_m = float(cube[2]) - self._rest_z_m
+        self._max_lift_m = max(self._max_lift_m, self._lift_m)
+        self._distance_m = float(np.linalg.norm(cube - self._true_goal))
+        was_up = self._max_lift_m >= DROPPED_FROM_M
+        if was_up and self._lift_m < 0.5 * DROPPED_FROM_M and not self._grasped_now:
+            return f"cube dropped mid-lift (it had been {self._max_lift_m * 100:.1f} cm up)"
+        return None
+
+    def outcome(self) -> Outcome:
+        d = self._distance_m
+        return Outcome(
+            d < SUCCESS_M,
+            d,
+            {
+                "final_distance_m": d,
+                "grasped": self._grasped_now,
+                "grasped_ever": self._grasped_ever,
+                "lift_m": self._lift_m,
+                "max_lift_m": self._max_lift_m,
+                "cube_blind_max_s": self._max_blind_s,
+                "cube_blind_fraction": self._blind_periods / max(self._periods, 1),
+            },
+        )
+
+
 @register_task
 class PickTask(Task):
     name = "pick"
@@ -53,6 +164,7 @@ class PickTask(Task):
     start_modes = (START_DEFAULT, START_HELD)
     occludable = True  # the fingers hide the cube's markers during a grasp
     command_fields = True
+    contract = PickContract
 
     def __init__(self) -> None:
         self.goal_m = np.zeros(3)
@@ -67,12 +179,9 @@ class PickTask(Task):
             self._cube_body = m.body(names.CUBE_BODY).id
             self._cube_geom = m.geom(names.CUBE_GEOM).id
             self._finger_geoms = frozenset(m.geom(g).id for g in names.FINGER_GEOMS)
-        radius = rng.uniform(0.12, 0.19)
-        angle = rng.uniform(-0.5, 0.5)
-        xy = radius * np.array([np.cos(angle), np.sin(angle)])
+        xy, yaw = sample_cube_pose(rng)
         xy = xy + env.dr_params.get("object", {}).get("init_xy_offset_m", np.zeros(2))
         half = float(m.geom_size[env.ids.cube_geom][2])
-        yaw = rng.uniform(-np.pi / 4, np.pi / 4)
         q = env.data.qpos
         a = self._cube_qadr
         q[a : a + 3] = (xy[0], xy[1], half)

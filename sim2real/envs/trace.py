@@ -7,8 +7,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hardware.spec import ArmSpec
 from sim2real import model as names
 from sim2real.envs.base import Sensed, Task, register_task
+from sim2real.envs.contract import DeployContract, Outcome, Percept, View
 from sim2real.observation import ObsField
 
 if TYPE_CHECKING:
@@ -19,6 +21,104 @@ APPROACH_STEPS = 10  # steps to reach the seam start before the target starts mo
 SUCCESS_MEAN_ERROR_M = 0.015
 
 
+def sample_seam(spec: ArmSpec, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """A seam the arm can follow end to end: (start (3,) at the stand-off height, heading rad).
+    The env and the mock world draw from this one distribution."""
+    L = names.SEAM_LENGTH_M
+    for _ in range(1000):
+        r, a = rng.uniform(0.11, 0.2), rng.uniform(-0.6, 0.6)
+        start = np.array([r * np.cos(a), r * np.sin(a), STANDOFF_M])
+        heading = rng.uniform(-np.pi, np.pi)
+        d = np.array([np.cos(heading), np.sin(heading), 0.0])
+        if all(
+            spec.inverse_kinematics(start + s * L * d) is not None for s in np.linspace(0, 1, 5)
+        ):
+            break
+    return start, float(heading)
+
+
+def seam_point(
+    start_m: np.ndarray, dir_xy: np.ndarray, step: int, episode_steps: int, dt_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The point to follow at period ``step`` and its velocity: still at the start for the
+    approach, then along the seam at constant speed to its end by the episode's last step."""
+    track_steps = max(1, episode_steps - APPROACH_STEPS)
+    s = np.clip((step - APPROACH_STEPS) / track_steps, 0.0, 1.0)
+    target = start_m + s * names.SEAM_LENGTH_M * dir_xy
+    moving = APPROACH_STEPS <= step < episode_steps
+    speed = names.SEAM_LENGTH_M / (track_steps * dt_s)
+    return target, (dir_xy * speed if moving else np.zeros(3))
+
+
+class TraceContract(DeployContract):
+    """Outside the simulator: two marker plates mark the seam's ends; the point to follow moves
+    along the line between them on the episode clock, as in training. Success: mean tracking
+    error below 15 mm over the tracking phase, from the truth in sim and mock."""
+
+    task = "trace"
+    objects = ("seam_start", "seam_end")
+
+    def setup(self) -> None:
+        self._start = np.zeros(3)
+        self._dir = np.array([1.0, 0.0, 0.0])
+        self._true: tuple[np.ndarray, np.ndarray] | None = None
+        self._err_sum_m = 0.0
+        self._err_n = 0
+        self._last_err_m = float("nan")
+
+    def placement(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        start, heading = sample_seam(self.spec, rng)
+        return {"seam": np.array([start[0], start[1], heading])}
+
+    @staticmethod
+    def _line(start_m: np.ndarray, end_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(start at the stand-off height, unit direction in the table plane)."""
+        d = np.array([end_m[0] - start_m[0], end_m[1] - start_m[1], 0.0])
+        d /= max(float(np.linalg.norm(d)), 1e-9)
+        return np.array([start_m[0], start_m[1], STANDOFF_M]), d
+
+    def begin(self, percept: Percept) -> None:
+        start, end = percept.position("seam_start"), percept.position("seam_end")
+        assert start is not None and end is not None
+        self._start, self._dir = self._line(start, end)
+
+    def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
+        tool = percept.tool_m
+        assert tool is not None
+        target, vel = seam_point(self._start, self._dir, step, self.episode_steps, self.dt_s)
+        return {
+            "ee_pos": tool,
+            "goal_pos": target,
+            "goal_delta": target - tool,
+            "goal_vel": vel,
+        }
+
+    def goal_m(self, percept: Percept, step: int) -> np.ndarray | None:
+        return seam_point(self._start, self._dir, step, self.episode_steps, self.dt_s)[0]
+
+    def score(self, view: View, step: int) -> str | None:
+        if view.truth:
+            if self._true is None:
+                self._true = self._line(view.objects["seam_start"], view.objects["seam_end"])
+            start, d = self._true
+        else:
+            start, d = self._start, self._dir
+        target, _ = seam_point(start, d, step, self.episode_steps, self.dt_s)
+        if step + 1 > APPROACH_STEPS:  # as the env's after_step: the tracking phase only
+            self._last_err_m = float(np.linalg.norm(view.tool_m - target))
+            self._err_sum_m += self._last_err_m
+            self._err_n += 1
+        return None
+
+    def outcome(self) -> Outcome:
+        mean = self._err_sum_m / self._err_n if self._err_n else float("nan")
+        return Outcome(
+            bool(self._err_n) and mean < SUCCESS_MEAN_ERROR_M,
+            mean,
+            {"mean_tracking_error_m": mean, "final_error_m": self._last_err_m},
+        )
+
+
 @register_task
 class TraceTask(Task):
     name = "trace"
@@ -26,6 +126,7 @@ class TraceTask(Task):
     success_threshold_m = SUCCESS_MEAN_ERROR_M
     # Steering on the commanded pose keeps a tracker stable under camera and servo lag (reach).
     command_fields = True
+    contract = TraceContract
 
     def __init__(self) -> None:
         self.start_m = np.zeros(3)
@@ -36,17 +137,8 @@ class TraceTask(Task):
         self._err_n = 0
 
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
-        spec = env.spec_arm
-        L = names.SEAM_LENGTH_M
-        for _ in range(1000):
-            r, a = rng.uniform(0.11, 0.2), rng.uniform(-0.6, 0.6)
-            start = np.array([r * np.cos(a), r * np.sin(a), STANDOFF_M])
-            heading = rng.uniform(-np.pi, np.pi)
-            d = np.array([np.cos(heading), np.sin(heading), 0.0])
-            if all(
-                spec.inverse_kinematics(start + s * L * d) is not None for s in np.linspace(0, 1, 5)
-            ):
-                break
+        start, heading = sample_seam(env.spec_arm, rng)
+        d = np.array([np.cos(heading), np.sin(heading), 0.0])
         self.start_m, self.dir = start, d
         m = env.model
         seam = m.body_mocapid[m.body(names.SEAM_BODY).id]
@@ -56,12 +148,9 @@ class TraceTask(Task):
         self._move_target(env, 0)
 
     def _move_target(self, env: Arm3Env, step: int) -> None:
-        track_steps = max(1, env.max_episode_steps - APPROACH_STEPS)
-        s = np.clip((step - APPROACH_STEPS) / track_steps, 0.0, 1.0)
-        self.target_m = self.start_m + s * names.SEAM_LENGTH_M * self.dir
-        moving = APPROACH_STEPS <= step < env.max_episode_steps
-        speed = names.SEAM_LENGTH_M / (track_steps * env.control_dt_s)
-        self.velocity_m_s = self.dir * speed if moving else np.zeros(3)
+        self.target_m, self.velocity_m_s = seam_point(
+            self.start_m, self.dir, step, env.max_episode_steps, env.control_dt_s
+        )
         env.data.mocap_pos[0] = self.target_m
 
     def after_step(self, env: Arm3Env) -> None:

@@ -1,0 +1,156 @@
+"""What a task needs to run outside the simulator: its deploy contract.
+
+Training judges a task on MuJoCo's truth and feeds the policy from sensor models. Deployment has
+percepts instead: a tool estimate and named object estimates (target plate, marker cube, seam
+ends) from the cameras, each with how long it has been blind. A task's ``DeployContract`` says:
+
+* which objects perception must track (``objects``);
+* how an episode starts: where a world that can place things puts them (``placement``), and
+  when a real arm may start (``ready``: the cube is seen and still);
+* how the observation's task fields are computed from percepts (``readings``), with the same
+  pure functions the env uses on its sensor models;
+* how success is judged (``score`` each period, ``outcome`` at the end): from the truth where
+  a world has one (sim, mock), from the camera estimates on a real arm.
+
+The deploy loop is generic over tasks: it never asks which task it runs.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from hardware.spec import ArmSpec
+
+
+@dataclass(frozen=True)
+class ObjectEstimate:
+    """One tracked object in the base frame; ``blind_s`` is the time since it was last measured
+    (0 when measured this period: the tracker coasts on its prediction meanwhile)."""
+
+    position_m: np.ndarray  # (3,)
+    blind_s: float = 0.0
+    yaw_rad: float | None = None
+
+
+@dataclass(frozen=True)
+class Percept:
+    """One period's estimates: the tool, and the objects the task asked for (missing: never
+    seen since the episode began)."""
+
+    tool_m: np.ndarray | None
+    objects: Mapping[str, ObjectEstimate] = field(default_factory=dict)
+
+    def position(self, name: str) -> np.ndarray | None:
+        est = self.objects.get(name)
+        return None if est is None else est.position_m
+
+    def blind_s(self, name: str) -> float:
+        est = self.objects.get(name)
+        return float("inf") if est is None else est.blind_s
+
+
+@dataclass(frozen=True)
+class View:
+    """What success is judged on in one period: the truth (sim, mock) or the estimates (real)."""
+
+    tool_m: np.ndarray  # (3,)
+    objects: Mapping[str, np.ndarray]  # name → (3,) position
+    actuators_rad: np.ndarray  # servo readings, joints then gripper
+    truth: bool  # True: from a world that knows; False: camera estimates
+    grasped: bool | None = None  # contact truth where the world has physics
+    blind_s: Mapping[str, float] = field(default_factory=dict)
+    commanded_rad: np.ndarray | None = None  # the actuator targets last sent
+
+
+@dataclass(frozen=True)
+class Outcome:
+    success: bool
+    distance_m: float  # the task's own error at the end (reach: tool-target; pick: cube-goal)
+    figures: dict[str, Any] = field(default_factory=dict)  # per-task figures for --json
+    reason: str | None = None  # why the episode ended early, if it did
+
+
+class DeployContract(ABC):
+    """One episode of a task outside the simulator. A new instance per episode."""
+
+    task: ClassVar[str]
+    objects: ClassVar[tuple[str, ...]]  # tracked objects besides the tool
+    # A still object: its estimate moved less than this over ``still_window_s`` before a start.
+    still_tolerance_m: ClassVar[float] = 0.003
+    still_window_s: ClassVar[float] = 0.5
+
+    def __init__(self, spec: ArmSpec, control_hz: float, episode_steps: int) -> None:
+        self.spec = spec
+        self.dt_s = 1.0 / control_hz
+        self.episode_steps = episode_steps
+        self._recent: list[tuple[float, dict[str, np.ndarray]]] = []
+        self.setup()
+
+    def setup(self) -> None:  # noqa: B027 - optional hook
+        """Initialise the episode's own state."""
+
+    # ---- how an episode starts -------------------------------------------------------------
+    @abstractmethod
+    def placement(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """Object name → pose (position, plus yaw or heading where it has one): what a world
+        that can place things does at the start, with the env's own distribution."""
+
+    def ready(self, percept: Percept, t_s: float) -> str | None:
+        """None once every object is seen and has stood still; otherwise why not yet."""
+        seen = {n: percept.position(n) for n in self.objects}
+        missing = [n for n, p in seen.items() if p is None or percept.blind_s(n) > 0.0]
+        if missing:
+            self._recent.clear()
+            return f"waiting to see {', '.join(missing)}"
+        self._recent.append((t_s, {n: np.asarray(p, dtype=float) for n, p in seen.items()}))
+        while self._recent and t_s - self._recent[0][0] > self.still_window_s:
+            self._recent.pop(0)
+        if t_s - self._recent[0][0] < 0.8 * self.still_window_s:
+            return "waiting for the objects to stand still"
+        first = self._recent[0][1]
+        moved = max(
+            float(np.linalg.norm(pos[n] - first[n])) for _, pos in self._recent for n in first
+        )
+        if moved > self.still_tolerance_m:
+            return f"objects moved {moved * 1e3:.1f} mm in {self.still_window_s} s"
+        return None
+
+    def begin(self, percept: Percept) -> None:  # noqa: B027 - optional hook
+        """Latch what the episode keeps from its start (pick: the lift goal above the cube)."""
+
+    # ---- the observation -------------------------------------------------------------------
+    @abstractmethod
+    def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
+        """The task's observation readings (``ee_pos``, goals, task extras) at period ``step``.
+        Joint readings, commanded targets and the previous action are the loop's."""
+
+    @abstractmethod
+    def goal_m(self, percept: Percept, step: int) -> np.ndarray | None:
+        """The desired goal the commanded-pose fields measure against (None: the layout has
+        no ``target_goal_delta``)."""
+
+    # ---- success ---------------------------------------------------------------------------
+    @abstractmethod
+    def score(self, view: View, step: int) -> str | None:
+        """Account for period ``step`` (after its command); returns a reason to end the
+        episode early (a dropped cube), or None."""
+
+    @abstractmethod
+    def outcome(self) -> Outcome:
+        """Success and figures once the episode is over."""
+
+
+def require_objects(percept: Percept, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The named object positions, or KeyError naming the first missing one."""
+    out = {}
+    for name in names:
+        p = percept.position(name)
+        if p is None:
+            raise KeyError(name)
+        out[name] = p
+    return out
