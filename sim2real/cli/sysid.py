@@ -31,6 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", default=None, help="serial port (with --backend serial)")
     parser.add_argument("--rate", type=float, default=100.0, help="excitation rate in Hz")
     parser.add_argument(
+        "--plant",
+        default=None,
+        help="with --record --backend mock: emulate this plant (file or mild|moderate|hard)",
+    )
+    parser.add_argument(
         "--kinematics",
         nargs="+",
         type=Path,
@@ -48,10 +53,19 @@ def _record(args: argparse.Namespace) -> int:
     from sim2real.sysid.record import record_excitation, save_log
 
     spec = load_spec(args.spec)
+    if args.plant is not None and args.backend != "mock":
+        raise ConfigError("--plant is the mock arm's truth: use it with --backend mock")
     if args.backend == "mock":
         from hardware.emulator.server import Emulator
+        from hardware.plant import load_plant
 
-        with Emulator(spec, args.protocol) as emu, SerialArm(spec, emu.port, args.protocol) as arm:
+        if args.plant is not None:
+            plant = load_plant(args.plant)
+            plant.check_against(spec)
+            emulator = plant.emulator(args.protocol)
+        else:
+            emulator = Emulator(spec, args.protocol)
+        with emulator as emu, SerialArm(spec, emu.port, args.protocol) as arm:
             log = record_excitation(arm, args.rate)
     elif args.backend == "serial":
         if not args.port:
