@@ -1,7 +1,7 @@
 """The servo model sysid fits: ``hardware.servo_model.ServoBank``, the one servo model, in
 continuous time (the emulator runs the same). ``simulate`` integrates it with a compiled kernel
-because a fit calls it thousands of times; ``simulate_reference`` runs the model itself, and a test
-holds the two equal.
+because a fit calls it thousands of times; ``simulate(..., engine="model")`` runs the model itself,
+and a test holds the two equal.
 
 Per actuator: the command takes effect ``latency_s`` after it was sent; the horn moves towards
 ``target + droop`` with a first-order lag ``time_constant_s``, no faster than
@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from hardware.servo_model import ServoBank, ServoParams
-from sim2real.errors import ConfigError
+from sim2real.errors import ConfigError, UnknownNameError
 
 SIM_DT_S = 0.001  # integration step of the fit's simulation
 
@@ -109,6 +109,54 @@ def _integrate(
     return out
 
 
+def _compiled(
+    fit: ServoFit, grid: np.ndarray, t_cmd_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
+    offset: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """The numba kernel (a fit calls it thousands of times)."""
+    switch_s = t_cmd_s + fit.latency_s
+    # Which command is in force at the end of each step (after the latency): -1 = none yet,
+    # and for how much of the step it has been.
+    idx = np.searchsorted(switch_s, grid, side="right") - 1
+    after = np.ones(len(grid))
+    has = idx >= 0
+    after[has] = np.clip((grid[has] - switch_s[idx[has]]) / SIM_DT_S, 0.0, 1.0)
+    return _integrate(
+        idx.astype(np.int64), after, u, x0, offset, SIM_DT_S, fit.time_constant_s,
+        fit.max_speed_rad_s, fit.deadband_rad,
+    )  # fmt: skip
+
+
+def _model(
+    fit: ServoFit, grid: np.ndarray, t_cmd_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
+    offset: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """The one servo model, ``hardware.servo_model.ServoBank``, step by step in numpy: the
+    definition the compiled kernel must equal (slow: for tests). Nothing moves before the first
+    command takes effect."""
+    n = len(x0)
+    params = ServoParams(
+        max_speed_rad_s=np.full(n, fit.max_speed_rad_s),
+        time_constant_s=fit.time_constant_s,
+        deadband_rad=fit.deadband_rad,
+        resolution_rad=0.0,
+        droop_rad=offset,
+        noise_rad=0.0,  # the latency is applied below, when the commands are queued
+    )
+    bank = ServoBank(params, x0)
+    for t_s, target in zip(t_cmd_s, u, strict=True):
+        bank.delay.push(float(t_s) + fit.latency_s, target)
+    powered = np.ones(n, dtype=bool)
+    out = np.empty((len(grid), n))
+    for i, t_s in enumerate(grid):
+        bank.run(float(t_s) - SIM_DT_S, float(t_s), powered)
+        out[i] = bank.pos
+    return out
+
+
+ENGINES = {"compiled": _compiled, "model": _model}
+
+
 def simulate(
     fit: ServoFit,
     t_cmd_s: np.ndarray,
@@ -116,75 +164,28 @@ def simulate(
     t_read_s: np.ndarray,
     x0_rad: np.ndarray,
     droop_mask: np.ndarray,
+    engine: str = "compiled",
 ) -> np.ndarray:
     """Positions (len(t_read), n) at the read times, for commands u (k, n) sent at t_cmd (k,).
 
     Command k acts from ``t_cmd_s[k] + latency_s`` on, to the sub-step; readings are linearly
-    interpolated between integration steps."""
-    grid = _grid(t_cmd_s, t_read_s)
-    t0 = float(grid[0])
-    switch_s = np.asarray(t_cmd_s, dtype=np.float64) + fit.latency_s
-    # Which command is in force at the end of each step (after the latency): -1 = none yet,
-    # and for how much of the step it has been.
-    idx = np.searchsorted(switch_s, grid, side="right") - 1
-    after = np.ones(len(grid))
-    has = idx >= 0
-    after[has] = np.clip((grid[has] - switch_s[idx[has]]) / SIM_DT_S, 0.0, 1.0)
-    out = _integrate(
-        idx.astype(np.int64),
-        after,
+    interpolated between integration steps. ``engine``: ``compiled`` (numba) or ``model`` (the
+    numpy servo model it is tested against)."""
+    if engine not in ENGINES:
+        raise UnknownNameError("sysid engine", engine, ENGINES)
+    t_cmd = np.asarray(t_cmd_s, dtype=np.float64)
+    t0 = min(t_cmd[0], t_read_s[0])
+    grid = np.arange(t0, max(t_cmd[-1], t_read_s[-1]) + 2 * SIM_DT_S, SIM_DT_S)
+    out = ENGINES[engine](
+        fit,
+        grid,
+        t_cmd,
         np.ascontiguousarray(u_rad, dtype=np.float64),
-        np.asarray(x0_rad, dtype=np.float64),
+        np.array(x0_rad, dtype=np.float64),
         fit.droop_rad * np.asarray(droop_mask, dtype=np.float64),
-        SIM_DT_S,
-        fit.time_constant_s,
-        fit.max_speed_rad_s,
-        fit.deadband_rad,
     )
-    return _read_at(out, t0, t_read_s)
-
-
-def _grid(t_cmd_s: np.ndarray, t_read_s: np.ndarray) -> np.ndarray:
-    """Integration step ends t_i; step i covers (t_i - SIM_DT_S, t_i]."""
-    t0 = min(t_cmd_s[0], t_read_s[0])
-    t_end = max(t_cmd_s[-1], t_read_s[-1]) + 2 * SIM_DT_S
-    return np.arange(t0, t_end, SIM_DT_S)
-
-
-def _read_at(out: np.ndarray, t0: float, t_read_s: np.ndarray) -> np.ndarray:
-    """Positions at the read times, linearly interpolated between integration steps."""
-    pos = np.clip((np.asarray(t_read_s) - t0) / SIM_DT_S, 0.0, len(out) - 1.0)
-    i0 = np.minimum(pos.astype(np.int64), len(out) - 2)
+    # step i covers (grid[i] - SIM_DT_S, grid[i]]: interpolate the readings between step ends
+    pos = np.clip((np.asarray(t_read_s) - t0) / SIM_DT_S, 0.0, len(grid) - 1.0)
+    i0 = np.minimum(pos.astype(np.int64), len(grid) - 2)
     f = (pos - i0)[:, None]
     return out[i0] * (1.0 - f) + out[i0 + 1] * f
-
-
-def simulate_reference(
-    fit: ServoFit,
-    t_cmd_s: np.ndarray,
-    u_rad: np.ndarray,
-    t_read_s: np.ndarray,
-    x0_rad: np.ndarray,
-    droop_mask: np.ndarray,
-) -> np.ndarray:
-    """``simulate`` by the one servo model, step by step in numpy: the definition the compiled
-    kernel must equal (slow: for tests). Nothing moves before the first command takes effect."""
-    grid = _grid(t_cmd_s, t_read_s)
-    n = len(x0_rad)
-    params = ServoParams(
-        max_speed_rad_s=np.full(n, fit.max_speed_rad_s),
-        time_constant_s=fit.time_constant_s,
-        deadband_rad=fit.deadband_rad,
-        resolution_rad=0.0,
-        droop_rad=fit.droop_rad * np.asarray(droop_mask, dtype=np.float64),
-        noise_rad=0.0,  # the latency is applied below, when the commands are queued
-    )
-    bank = ServoBank(params, np.asarray(x0_rad, dtype=np.float64))
-    for t_s, u in zip(t_cmd_s, np.asarray(u_rad, dtype=np.float64), strict=True):
-        bank.delay.push(float(t_s) + fit.latency_s, u)
-    powered = np.ones(n, dtype=bool)
-    out = np.empty((len(grid), n))
-    for i, t_s in enumerate(grid):
-        bank.run(float(t_s) - SIM_DT_S, float(t_s), powered)
-        out[i] = bank.pos
-    return _read_at(out, float(grid[0]), t_read_s)

@@ -1,4 +1,5 @@
-"""Package hygiene: import weight, allowed dependencies, atomic writes, the report."""
+"""Package hygiene: import weight, allowed dependencies, the report (the atomic writer is
+``s2r_common.atomic``, tested in ``tests/s2r_common``)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 
 from calibration.intrinsics import View, calibrate_camera
 from calibration.report import markdown_report, render_png
 from calibration.synthetic import project_board, random_board_poses
 from calibration.triangulate import StereoRig
-from s2r_common.atomic import atomic_write_text
 
 REPO = Path(__file__).resolve().parents[2]
 MODULES = [p.stem for p in (REPO / "calibration").glob("*.py") if p.stem != "__init__"]
@@ -51,22 +50,6 @@ def test_only_numpy_opencv_filterpy_are_imported() -> None:
         + "print(sorted(b for b in bad if b in sys.modules))"
     )
     assert _python(code) == "[]"
-
-
-def test_atomic_write_leaves_old_file_on_failure(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    target = tmp_path / "calib.yaml"
-    atomic_write_text(target, "old")
-
-    def fail(*_: object) -> None:
-        raise OSError("disk full")
-
-    monkeypatch.setattr(os, "replace", fail)
-    with pytest.raises(OSError, match="disk full"):
-        atomic_write_text(target, "new and partial")
-    assert target.read_text() == "old"
-    assert [p.name for p in tmp_path.iterdir()] == ["calib.yaml"]  # temp file cleaned up
 
 
 def test_report_markdown_and_png(rig: StereoRig, board) -> None:  # type: ignore[no-untyped-def]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim2real.sysid.model import SIM_DT_S, ServoFit, simulate, simulate_reference
+from sim2real.sysid.model import SIM_DT_S, ServoFit, simulate
 
 FITS = [
     ServoFit(time_constant_s=0.05, max_speed_rad_s=2.0, deadband_rad=0.01, latency_s=0.0),
@@ -32,7 +32,7 @@ def test_compiled_simulation_equals_the_numpy_servo_model(fit: ServoFit) -> None
     x0 = np.array([0.1, -0.2, 0.0])
     mask = np.array([0.0, 1.0, 1.0])
     fast = simulate(fit, t_cmd, u, t_read, x0, mask)
-    ref = simulate_reference(fit, t_cmd, u, t_read, x0, mask)
+    ref = simulate(fit, t_cmd, u, t_read, x0, mask, engine="model")
     assert np.ptp(ref, axis=0).min() > 0.2  # the joints really moved
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-9)
 
@@ -45,5 +45,5 @@ def test_reference_differs_when_the_model_does() -> None:
     t_read = np.arange(0.0, 1.2, 0.01)
     later = ServoFit(**{**fit.__dict__, "latency_s": fit.latency_s + SIM_DT_S})
     a = simulate(fit, t_cmd, u, t_read, np.zeros(2), np.ones(2))
-    b = simulate_reference(later, t_cmd, u, t_read, np.zeros(2), np.ones(2))
+    b = simulate(later, t_cmd, u, t_read, np.zeros(2), np.ones(2), engine="model")
     assert np.abs(a - b).max() > 1e-4
