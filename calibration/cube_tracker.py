@@ -131,13 +131,6 @@ class SmallMarkerDetector:
         ]
 
 
-def _project(rig: StereoRig, side: int, cam_T_cube: np.ndarray, cube_p: np.ndarray) -> np.ndarray:
-    """Cube-frame points (N, 3) → pixels (N, 2) in the left (0) or right (1) image."""
-    T = cam_T_cube if side == 0 else rig.right_T_left @ cam_T_cube
-    cam = rig.left if side == 0 else rig.right
-    return cam.project(cube_p @ T[:3, :3].T + T[:3, 3])
-
-
 def _rigid_inverse(a_T_b: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = a_T_b[:3, :3].T
@@ -152,6 +145,61 @@ def _pose(params: np.ndarray) -> np.ndarray:
     return T
 
 
+@dataclass(frozen=True, eq=False)
+class CornerModel:
+    """The detected corners of one image and their cube-frame model: a face centre plus an
+    offset scaled by the apparent marker size (the refinement's 7th parameter)."""
+
+    side: int  # 0 left, 1 right
+    centres: np.ndarray  # (4N, 3) cube frame
+    offsets: np.ndarray  # (4N, 3)
+    observed_px: np.ndarray  # (4N, 2)
+
+
+def corner_models(
+    cube: MarkerCube, markers: tuple[list[Marker], list[Marker]]
+) -> list[CornerModel]:
+    models = []
+    for side, found in enumerate(markers):
+        if found:
+            corners = np.concatenate([cube.face_corners_m(m.id) for m in found])
+            centres = np.repeat([cube.cube_T_face(m.id)[:3, 3] for m in found], 4, axis=0)
+            observed = np.concatenate([m.corners_px for m in found])
+            models.append(CornerModel(side, centres, corners - centres, observed))
+    return models
+
+
+def residual_and_jacobian(
+    rig: StereoRig, models: list[CornerModel], params: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Reprojection residuals (2M,) in px of the cube ``params`` = [rvec (3), tvec (3) of
+    ``left_T_cube``, marker scale] and their Jacobian (2M, 7), analytic: ``projectPoints`` gives
+    d(uv)/d(rvec, tvec) (d/dtvec is also d/d(point) in the camera frame, which gives the scale
+    column) and ``composeRT`` chains the right camera's pose through ``right_T_left``."""
+    rvec, tvec, scale = params[:3].reshape(3, 1), params[3:6].reshape(3, 1), float(params[6])
+    rvec_rl = cv2.Rodrigues(np.ascontiguousarray(rig.R))[0]
+    residuals, jacobians = [], []
+    for model in models:
+        cam = rig.left if model.side == 0 else rig.right
+        if model.side == 0:
+            rv, tv = rvec, tvec
+        else:
+            rv, tv, dr_dr, dr_dt, _, _, dt_dr, dt_dt, _, _ = cv2.composeRT(
+                rvec, tvec, rvec_rl, rig.T.reshape(3, 1)
+            )
+        points = model.centres + scale * model.offsets
+        uv, jac = cv2.projectPoints(points, rv, tv, cam.K, cam.dist)
+        residuals.append(uv.reshape(-1, 2) - model.observed_px)
+        j_r, j_t = jac[:, 0:3], jac[:, 3:6]
+        d_point = j_t.reshape(-1, 2, 3)  # d(uv)/d(point in this camera's frame)
+        R = cv2.Rodrigues(rv)[0]
+        j_s = np.einsum("nij,nj->ni", d_point, model.offsets @ R.T)
+        if model.side == 1:
+            j_r, j_t = j_r @ dr_dr + j_t @ dt_dr, j_r @ dr_dt + j_t @ dt_dt
+        jacobians.append(np.hstack([j_r, j_t, j_s.reshape(-1, 1)]))
+    return np.concatenate(residuals).ravel(), np.vstack(jacobians)
+
+
 def refine_cube_pose(
     rig: StereoRig,
     cube: MarkerCube,
@@ -161,7 +209,7 @@ def refine_cube_pose(
 ) -> tuple[np.ndarray, float]:
     """Refine ``left_T_cube`` (4, 4) so the cube's face corners reproject onto the detected
     corners in both images (Gauss–Newton on rotation vector, translation and the markers'
-    apparent size, numeric Jacobian).
+    apparent size, :func:`residual_and_jacobian`).
 
     Triangulating each corner alone leaves millimetres of depth noise per corner at half a
     metre (0.5 px of disparity is ~4 mm there), so a single face's normal is off by degrees;
@@ -171,41 +219,11 @@ def refine_cube_pose(
     size imposed, a 15 px marker read 1 % small would put the cube ~6 mm too far; free, depth
     comes from the disparity. Returns the pose and the RMS reprojection error (px).
     """
-    # Per image: the face centres and corner offsets (cube frame) of every detected marker,
-    # stacked so each residual is one projectPoints call per image.
-    centres: list[np.ndarray] = []
-    offsets: list[np.ndarray] = []
-    observed: list[np.ndarray] = []
-    sides: list[int] = []
-    for side, found in enumerate(markers):
-        if not found:
-            continue
-        corners = [cube.face_corners_m(m.id) for m in found]
-        face_centres = [np.broadcast_to(cube.cube_T_face(m.id)[:3, 3], (4, 3)) for m in found]
-        centres.append(np.concatenate(face_centres))
-        offsets.append(np.concatenate(corners) - centres[-1])
-        observed.append(np.concatenate([m.corners_px for m in found]))
-        sides.append(side)
-    obs = np.concatenate(observed).ravel()
-
-    def residual(params: np.ndarray) -> np.ndarray:
-        T = _pose(params[:6])
-        uv = [
-            _project(rig, side, T, c + params[6] * o)
-            for side, c, o in zip(sides, centres, offsets, strict=True)
-        ]
-        return np.concatenate(uv).ravel() - obs
-
-    rvec = cv2.Rodrigues(left_T_cube[:3, :3])[0].ravel()
+    models = corner_models(cube, markers)
+    rvec = cv2.Rodrigues(np.ascontiguousarray(left_T_cube[:3, :3]))[0].ravel()
     params = np.concatenate([rvec, left_T_cube[:3, 3], [1.0]])
-    steps = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-7, 1e-7, 1e-6])
-    r = residual(params)
+    r, J = residual_and_jacobian(rig, models, params)
     for _ in range(iterations):
-        J = np.empty((len(r), len(params)))
-        for k in range(len(params)):
-            dp = np.zeros(len(params))
-            dp[k] = steps[k]
-            J[:, k] = (residual(params + dp) - r) / steps[k]
         JtJ = J.T @ J
         # cv2.solve, not np.linalg: a 7x7 system must not wait on BLAS threads in a busy loop.
         ok, delta = cv2.solve(
@@ -215,10 +233,10 @@ def refine_cube_pose(
             break
         delta = delta.ravel()
         trial = params + delta
-        r_trial = residual(trial)
+        r_trial, J_trial = residual_and_jacobian(rig, models, trial)
         if float(r_trial @ r_trial) >= float(r @ r):
             break
-        params, r = trial, r_trial
+        params, r, J = trial, r_trial, J_trial
         if np.max(np.abs(delta[:3])) < 1e-7 and np.max(np.abs(delta[3:6])) < 1e-8:
             break
     rms_px = float(np.sqrt(np.mean(np.sum(r.reshape(-1, 2) ** 2, axis=1))))

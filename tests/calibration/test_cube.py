@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -22,7 +23,12 @@ from calibration.cube import (
     mean_yaw,
     wrap_yaw,
 )
-from calibration.cube_tracker import StereoCubeTracker, yaw_of
+from calibration.cube_tracker import (
+    StereoCubeTracker,
+    corner_models,
+    residual_and_jacobian,
+    yaw_of,
+)
 from calibration.errors import ConfigError
 from calibration.markers import Marker
 from calibration.synthetic import example_rig, pose, rotation
@@ -155,6 +161,28 @@ def test_measured_cube_matches_truth_through_a_distorted_rig(
         yaw_errors.append(abs(wrap_yaw(fit.yaw_rad - yaw)))
     assert max(errors) < 0.0015
     assert math.degrees(max(yaw_errors)) < 1.5
+
+
+def test_refinement_jacobian_matches_finite_differences() -> None:
+    rig = example_rig()
+    rng = np.random.default_rng(5)
+    base_T_cube = _base_T_cube(np.array([0.16, 0.02, CUBE.half_m]), 0.4)
+    markers = _markers(rig, base_T_cube, rng)
+    assert markers[0] and markers[1]
+    models = corner_models(CUBE, markers)
+    left_T_cube = np.linalg.inv(BASE_T_LEFT) @ base_T_cube
+    rvec = cv2.Rodrigues(left_T_cube[:3, :3])[0].ravel()
+    params = np.concatenate([rvec + 0.01, left_T_cube[:3, 3] + 0.002, [0.97]])
+    _, J = residual_and_jacobian(rig, models, params)
+    numeric = np.empty_like(J)
+    for k in range(7):
+        step = np.zeros(7)
+        step[k] = 1e-6
+        numeric[:, k] = (
+            residual_and_jacobian(rig, models, params + step)[0]
+            - residual_and_jacobian(rig, models, params - step)[0]
+        ) / 2e-6
+    np.testing.assert_allclose(J, numeric, rtol=1e-4, atol=1e-3)  # px per unit; |J| ~ 1e3
 
 
 def test_refinement_beats_per_face_triangulation() -> None:
