@@ -155,6 +155,14 @@ def main() -> int:
         "video_keys": ["observation.images.cam_left", "observation.images.cam_right"],
         "task": "pick up the cube and lift it to the goal",
         "video_frames_checked": n_ref,
+        # 8 future actions from 3 steps before an episode's end: 5 past it are padding.
+        "action_chunk_shape": [8, info["features"]["action"]["shape"][0]],
+        "action_chunk_padded": 5,
+        "image_history_shape": [
+            2,
+            3,
+            *info["features"]["observation.images.cam_left"]["shape"][:2],
+        ],
     }
     mismatch = {k: (got.get(k), v) for k, v in want.items() if got.get(k) != v}
     ok = not mismatch and got["video_mean_abs_diff"] < 1e-3 and got["codebase_version"] == "v3.0"

@@ -36,6 +36,18 @@ def main() -> None:
         worst = max(worst, float(np.abs(got - want).mean()))
         checked += 1
     first = ds[0]
+    # How policies train on it: action chunks and a short image history, by timestamp offsets.
+    dt = 1.0 / ds.fps
+    chunked = LeRobotDataset(
+        "local/sim2real",
+        root=root,
+        video_backend="pyav",
+        delta_timestamps={
+            "action": [i * dt for i in range(8)],
+            "observation.images.cam_left": [-dt, 0.0],
+        },
+    )
+    mid = chunked[int(chunked.meta.episodes[0]["dataset_to_index"]) - 3]  # near an episode end
     print(
         json.dumps(
             {
@@ -59,6 +71,9 @@ def main() -> None:
                 "video_keys": list(ds.meta.video_keys),
                 "task": first["task"],
                 "state_shape": list(first["observation.state"].shape),
+                "action_chunk_shape": list(mid["action"].shape),
+                "action_chunk_padded": int(mid["action_is_pad"].sum()),
+                "image_history_shape": list(mid["observation.images.cam_left"].shape),
                 "video_frames_checked": checked,
                 "video_mean_abs_diff": worst,
             }
