@@ -312,17 +312,22 @@ class LeRobotWriter:
         self.schema, self.overwrite = schema, overwrite
         self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.root.name}.", dir=self.root.parent))
         self._arrow = _arrow_schema(schema)
-        data_file = self._tmp / DATA_PATH.format(chunk_index=0, file_index=0)
-        data_file.parent.mkdir(parents=True)
-        self._data = pq.ParquetWriter(data_file, self._arrow, compression="snappy")
-        self._videos = {
-            cam: _VideoStream(
-                self._tmp / VIDEO_PATH.format(video_key=cam, chunk_index=0, file_index=0),
-                schema.image_hw,
-                schema.fps,
-            )
-            for cam in schema.cameras
-        }
+        self._videos: dict[str, _VideoStream] = {}
+        try:
+            data_file = self._tmp / DATA_PATH.format(chunk_index=0, file_index=0)
+            data_file.parent.mkdir(parents=True)
+            self._data = pq.ParquetWriter(data_file, self._arrow, compression="snappy")
+            for cam in schema.cameras:
+                self._videos[cam] = _VideoStream(
+                    self._tmp / VIDEO_PATH.format(video_key=cam, chunk_index=0, file_index=0),
+                    schema.image_hw,
+                    schema.fps,
+                )
+        except BaseException:  # no encoder, disk full: leave no temporary folder behind
+            for video in self._videos.values():
+                video.close()
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
         self._stats: dict[str, _RunningStats | _ImageStats] = {
             k: _RunningStats(f.shape) for k, f in schema.features.items()
         }
