@@ -20,7 +20,13 @@ and renamed into place when it is complete: a crash never leaves half a dataset.
 The writer takes a dict of per-step arrays per episode, so that any loop that logs steps (the
 evaluation rollouts, the deploy loop) can record: ``arm_features`` / ``arm_frames`` give the
 standard arm keys (joint state, action, named position estimates, cameras), and
-``split_episodes`` cuts a flat per-period log (the deploy loop's) into episodes.
+``split_episodes`` cuts a flat per-period log (the deploy loop's) into episodes::
+
+    schema = DatasetSchema(fps=20, features=arm_features(joints, joints, ["tool", "goal"]))
+    with LeRobotWriter("datasets/run1", schema) as writer:
+        for rows, ok in zip(split_episodes(log), successes):
+            est = {"tool": rows["ee_est_m"], "goal": rows["goal_est_m"]}
+            writer.add_episode(arm_frames(rows["joints_rad"], rows["action"], est), task, ok)
 """
 
 from __future__ import annotations
