@@ -9,9 +9,10 @@ textured faces), the printable sheet (``sim2real calibrate cube-sheet``) and the
 
 Each face has a frame ``cube_T_face`` whose z axis points out of the face and whose y axis is the
 marker's "up". On the side faces "up" is the cube's top face, which is what folding the printed
-net gives (:func:`face_net_layout`). The tracker does not depend on that in-plane orientation: it
+net gives (:func:`face_net_layout`). The tracker's rigid fit over all faces relies on that
+orientation; its per-face estimate (:func:`centre_and_yaw`, the fit's start and its fallback)
 uses only each marker's normal and, on a horizontal face, an edge direction, so a marker glued
-turned by 90° still gives the right centre and yaw.
+turned by 90° still gives the centre and yaw.
 """
 
 from __future__ import annotations
