@@ -62,7 +62,9 @@ class CubeEstimate:
 
     ``valid`` is False until a face has been seen (then ``blind_s`` is ``inf`` and ``reason``
     says why). ``yaw_rad`` is about base z, in [-π/4, π/4): a cube looks the same every 90°.
-    ``faces_seen`` lists the face ids used this frame pair (empty when coasting or predicting).
+    ``faces_seen`` lists the face ids measured this frame pair (empty when nothing was seen and
+    from ``predict``); a measurement the Kalman gate rejects still lists its faces, while
+    ``blind_s`` counts from the last accepted one.
     """
 
     timestamp_s: float
