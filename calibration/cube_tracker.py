@@ -305,6 +305,7 @@ class StereoCubeTracker:
         upscale: float = 1.5,
         refine: bool = True,
         max_reprojection_px: float = 1.5,
+        full_search_every: int = 4,
     ) -> None:
         self.rig = rig
         self.base_T_cam = np.eye(4) if base_T_cam is None else np.asarray(base_T_cam, np.float64)
@@ -329,6 +330,9 @@ class StereoCubeTracker:
         self.max_spread_m = max_spread_m
         self.reacquire_after_s = reacquire_after_s
         self.yaw_time_constant_s = yaw_time_constant_s
+        if full_search_every < 1:
+            raise ConfigError(f"full_search_every must be ≥ 1, got {full_search_every}")
+        self.full_search_every = full_search_every
         self.refine = refine
         self.max_reprojection_px = max_reprojection_px
         self.detector = SmallMarkerDetector(self.cube.dictionary, upscale)
@@ -339,7 +343,9 @@ class StereoCubeTracker:
     def reset(self) -> None:
         """Forget the track (a new episode: the cube was placed anew)."""
         self.tracker = KalmanTracker(self.config)
-        self._last: list[list[Marker]] = [[], []]
+        self._last: list[list[Marker]] = [[], []]  # the previous pair's markers
+        self._sighting: list[list[Marker]] = [[], []]  # the last measured pair's markers
+        self._misses = 0  # pairs without a measurement since the last one
         self._last_seen_s: float | None = None
         self._last_capture_s: float | None = None
         self._yaw_rad = math.nan
@@ -349,15 +355,29 @@ class StereoCubeTracker:
         self.frames_observed = 0
 
     # ------------------------------------------------------------------ measurement
-    def _find(self, side: int, frame: np.ndarray, use_roi: bool) -> tuple[list[Marker], bool]:
-        """The cube's face markers in one image, and whether only a region was searched."""
-        last = self._last[side]
-        if use_roi and last and self.roi_margin > 0:
-            roi = _union_roi(last, self.roi_margin)
+    def _regions(self, side: int) -> list[Roi]:
+        """Where to look first: around the last pair's markers, else around the last sighting
+        (grown: a hidden cube is often moved)."""
+        if self.roi_margin <= 0:
+            return []
+        if self._last[side]:
+            return [_union_roi(self._last[side], self.roi_margin)]
+        if self._sighting[side]:
+            return [_union_roi(self._sighting[side], 2.0 * self.roi_margin)]
+        return []
+
+    def _find(self, side: int, frame: np.ndarray, full: bool) -> tuple[list[Marker], bool]:
+        """The cube's face markers in one image, and whether the whole image was searched."""
+        for roi in self._regions(side):
             found = [m for m in self.detector.detect(frame, roi) if m.id in self._face_ids]
             if found:
-                return found, True
-        return [m for m in self.detector.detect(frame) if m.id in self._face_ids], False
+                return found, False
+        if not full:
+            return [], False
+        return self._detect_all(frame), True
+
+    def _detect_all(self, frame: np.ndarray) -> list[Marker]:
+        return [m for m in self.detector.detect(frame) if m.id in self._face_ids]
 
     def _face(self, left: Marker, right: Marker) -> FaceObservation | None:
         epipolar = float(np.max(self.rig.epipolar_errors_px(left.corners_px, right.corners_px)))
@@ -412,18 +432,27 @@ class StereoCubeTracker:
         return stereo if stereo.spread_m <= self.max_spread_m else None
 
     def measure(self, left_bgr: np.ndarray, right_bgr: np.ndarray) -> CubeFit | None:
-        """The cube's raw (unfiltered) centre and yaw from one frame pair, or ``None``."""
-        (left, roi_l), (right, roi_r) = (
-            self._find(0, left_bgr, True),
-            self._find(1, right_bgr, True),
+        """The cube's raw (unfiltered) centre and yaw from one frame pair, or ``None``.
+
+        While the cube is lost after a sighting, only every ``full_search_every``-th pair is
+        searched whole (upscaled full frames are the tracker's dearest step); the others look
+        around the last sighting.
+        """
+        full = not any(self._sighting) or self._misses % self.full_search_every == 0
+        (left, full_l), (right, full_r) = (
+            self._find(0, left_bgr, full),
+            self._find(1, right_bgr, full),
         )
         fit = self.measure_markers(left, right)
-        if fit is None and (roi_l or roi_r):  # the regions may have cut a face off: look again
-            if roi_l:
-                left, _ = self._find(0, left_bgr, False)
-            if roi_r:
-                right, _ = self._find(1, right_bgr, False)
+        if fit is None and full and not (full_l and full_r):  # a region may have cut a face off
+            if not full_l:
+                left = self._detect_all(left_bgr)
+            if not full_r:
+                right = self._detect_all(right_bgr)
             fit = self.measure_markers(left, right)
+        self._misses = 0 if fit is not None else self._misses + 1
+        if fit is not None:
+            self._sighting = [left, right]
         self._last = [left, right]
         return fit
 

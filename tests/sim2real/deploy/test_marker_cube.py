@@ -116,6 +116,32 @@ def test_hidden_cube_coasts_reports_blind_time_and_is_reacquired(
     assert tracker.observe(back.left_bgr, back.right_bgr, t) is est
 
 
+def test_a_lost_cube_is_searched_whole_only_every_nth_pair(
+    spec: ArmSpec, pick_cams: VirtualStereoCameras
+) -> None:
+    """Upscaled full frames are the tracker's dearest step: while blind after a sighting, the
+    other pairs only look around where the cube was."""
+    tracker = _tracker(pick_cams)
+    _place_cube(pick_cams, spec, np.array([0.16, 0.02, names.MARKER_CUBE.half_m]), 0.2)
+    seen = pick_cams.read()
+    _place_cube(pick_cams, spec, np.array([0.16, 0.02, -0.1]), 0.2)
+    hidden = pick_cams.read()
+    full_searches: list[int] = []
+    detect = tracker.detector.detect
+
+    def counting(image: np.ndarray, roi: tuple[int, int, int, int] | None = None) -> list:
+        if roi is None:
+            full_searches[-1] += 1
+        return detect(image, roi)
+
+    tracker.detector.detect = counting  # type: ignore[method-assign]
+    for k, frames in enumerate([seen] * 2 + [hidden] * 9):
+        full_searches.append(0)
+        tracker.observe(frames.left_bgr, frames.right_bgr, k * PERIOD_S)
+    assert full_searches[:2] == [2, 0]  # acquired whole, then tracked in its region
+    assert full_searches[2:] == [2, 0, 0, 0, 2, 0, 0, 0, 2]  # every 4th blind pair, both images
+
+
 def test_a_cube_never_seen_is_reported_not_crashed_on(
     spec: ArmSpec, pick_cams: VirtualStereoCameras
 ) -> None:
