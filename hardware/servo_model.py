@@ -31,10 +31,10 @@ from hardware.spec import ArmSpec
 
 
 def quantise(x_rad: np.ndarray, resolution_rad: float) -> np.ndarray:
-    """Round to the nearest multiple of ``resolution_rad`` (0: unchanged)."""
+    """Round to the nearest multiple of ``resolution_rad`` (0: unchanged; ties to even)."""
     if resolution_rad <= 0:
         return x_rad
-    return np.rint(x_rad * (1.0 / resolution_rad)) * resolution_rad
+    return np.rint(x_rad / resolution_rad) * resolution_rad
 
 
 def lag_step(
@@ -233,6 +233,7 @@ class StepServo:
         self.max_step_rad = self._max_speed_rad_s * max_speed_scale * self._dt_s
         self.deadband_rad = float(deadband_rad)
         self.quantum_rad = float(resolution_rad)
+        self._per_quantum = 1.0 / self.quantum_rad if self.quantum_rad > 0 else 0.0
 
     def reset(self, targets_rad: np.ndarray) -> None:
         """Start at rest on ``targets_rad``, with the latency line full of it."""
@@ -249,6 +250,10 @@ class StepServo:
             delta *= np.abs(delta) >= self.deadband_rad
         np.minimum(delta, self.max_step_rad, out=delta)
         np.maximum(delta, -self.max_step_rad, out=delta)
-        out = quantise(self._applied + delta, self.quantum_rad)
+        out = self._applied + delta
+        if self.quantum_rad > 0:
+            # ``quantise`` by the reciprocal: the same rounding but for last-bit ties, and the
+            # bits the trained policies saw (pinned by tests/sim2real/randomization)
+            out = np.rint(out * self._per_quantum) * self.quantum_rad
         self._applied = out
         return out
