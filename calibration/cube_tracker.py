@@ -578,14 +578,19 @@ class StereoSeamTracker:
             for marker_id in (self.seam.start_id, self.seam.end_id)
         )
         self._last_seen_s: float | None = None
+        self._last: SeamEstimate | None = None
 
     def observe(
         self, left_bgr: np.ndarray, right_bgr: np.ndarray, capture_time_s: float
     ) -> SeamEstimate:
+        """Measure and filter both plates; the same pair handed over twice is measured once."""
+        if self._last is not None and capture_time_s == self._last.timestamp_s:
+            return self._last
         ests = [p.observe(left_bgr, right_bgr, capture_time_s) for p in self.plates]
         if all(p.last_measurement is not None for p in self.plates):
             self._last_seen_s = capture_time_s
-        return self._result(ests, capture_time_s)
+        self._last = self._result(ests, capture_time_s)
+        return self._last
 
     def predict(self, command_time_s: float) -> SeamEstimate:
         return self._result([p.predict(command_time_s) for p in self.plates], command_time_s)

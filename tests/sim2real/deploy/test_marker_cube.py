@@ -205,5 +205,8 @@ def test_seam_ends_from_the_rendered_end_plates(spec: ArmSpec) -> None:
         assert np.linalg.norm(est.start_m[:2] - start[:2]) < 0.004
         assert np.linalg.norm(est.end_m[:2] - end[:2]) < 0.004
         assert abs(est.start_m[2]) < 0.004  # the plates lie on the table
+        assert tracker.observe(frames.left_bgr, frames.right_bgr, 0.0) is est  # not re-counted
+        later = tracker.predict(0.5)
+        assert later.valid and later.blind_s == pytest.approx(0.5)
     finally:
         cams.close()
