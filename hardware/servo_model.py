@@ -53,7 +53,7 @@ def lag_step(
     moving = np.abs(err) > deadband_rad
     if active is not None:
         moving &= active
-    move = err * (1.0 - math.exp(-dt_s / time_constant_s))
+    move = err * (1.0 - np.exp(-dt_s / time_constant_s))
     vmax_dt = np.multiply(max_speed_rad_s, dt_s)
     return np.clip(move, -vmax_dt, vmax_dt) * moving
 
