@@ -298,9 +298,12 @@ class ArmBase(ABC):
         ``off_pose_limit_rad(spec)`` is warned about and returned: it works, a little off. One
         that stops further away, or is still away at ``timeout_s``, is e-stopped (hold, then
         torque off) and raises HardwareError."""
+        target = self.safety.clip_to_limits(self.safety.check_shape(target_rad))
+        outside = self.spec.workspace_violation(target[: self.spec.n_joints])
+        if outside:  # the guard would hold it short: say so now, not after the timeout
+            raise SafetyError(f"cannot move to {np.round(target, 3).tolist()} rad: {outside}")
         if not self._enabled or self._estop_reason is not None:
             self.enable()
-        target = self.safety.clip_to_limits(self.safety.check_shape(target_rad))
         tol = arrival_tolerance_rad(self.spec) if tolerance_rad is None else float(tolerance_rad)
         off_pose = max(off_pose_limit_rad(self.spec), tol)
         window_s = settle_window_s(self.spec)

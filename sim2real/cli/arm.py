@@ -29,7 +29,7 @@ from types import FrameType
 import numpy as np
 
 from hardware.atomic import atomic_write_text
-from hardware.errors import CalibrationFileError, HardwareError
+from hardware.errors import CalibrationFileError, HardwareError, SafetyError
 from hardware.joint_calibration import (
     ArmCalibration,
     JointCalibration,
@@ -376,7 +376,11 @@ def _jog(args: argparse.Namespace) -> int:
                 target = arm.last_sent_rad
                 assert target is not None
                 target[names.index(words[0])] += delta
-                state = arm.move_to(target)
+                try:
+                    state = arm.move_to(target)
+                except SafetyError as exc:  # the workspace guard: stay put, keep jogging
+                    print(f"  {exc}")
+                    continue
             else:
                 print(
                     f"unknown command {line!r}; use '<joint> <delta_rad>' with joint one of "

@@ -209,6 +209,29 @@ def test_the_arm_can_always_be_parked_and_homed(start: tuple[float, ...]) -> Non
         np.testing.assert_allclose(q, goal, atol=1e-12)
 
 
+def test_move_to_a_pose_under_the_table_is_refused_at_once(
+    quick_spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    """Through SerialArm and the emulator over a pty: the goal is refused with the reason before
+    anything moves (rather than walking until the guard stops it and timing out), and every
+    command the guard shortened still arrives above the floor."""
+    emu = make_emulator(quick_spec, "s2r")
+    guard = WorkspaceGuard(quick_spec)
+    dive = np.array([0.0, 1.3, 0.27, 0.0])
+    with SerialArm(quick_spec, emu.port, protocol="s2r", host_watchdog_s=None) as arm:
+        arm.home()
+        before = arm.last_sent_rad
+        with pytest.raises(SafetyError, match="cannot move to .* tool at z=.* below the table"):
+            arm.move_to(dive)
+        np.testing.assert_array_equal(arm.last_sent_rad, before)
+        sent = [arm.command(dive) for _ in range(20)]
+        emu.sync()
+        assert arm.safety.stats.workspace_clamped > 0
+        assert max(guard.excess_m(q) for q in sent) <= ROUNDING_M
+        received = [np.array(e.requested) for e in emu.applied() if e.kind == "targets"]
+        assert max(guard.excess_m(arm.calibration.from_units(u)) for u in received) <= ROUNDING_M
+
+
 @pytest.mark.parametrize(
     ("old", "new", "message"),
     [
