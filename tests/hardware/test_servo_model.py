@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from hardware.servo_model import CommandDelay, ServoBank, ServoParams, StepServo, quantise
@@ -57,3 +59,23 @@ def test_step_servo_holds_small_changes_and_limits_big_ones() -> None:
     servo.reset(np.zeros(2))
     assert np.array_equal(servo.step(np.array([0.5, 0.005])), [0.0, 0.0])  # latency: old target
     np.testing.assert_allclose(servo.step(np.array([0.5, 0.005])), [0.1, 0.0])  # rate, dead band
+
+
+def test_emulator_servos_match_the_recorded_dynamics_to_the_bit() -> None:
+    """The emulator's servos behave exactly as before the model moved (see
+    ``tests/data/actuation_pin/README.md``): positions and noisy, quantised readings."""
+    pin = np.load(Path(__file__).parents[1] / "data" / "actuation_pin" / "emulator_servos_v1.npz")
+    for name, latency_s in (("prompt", 0.0), ("latent", 0.023)):
+        bank = ServoBank(
+            ServoParams.from_spec(SPEC, 0.02, 0.003, latency_s), SPEC.actuator_park_rad, seed=3
+        )
+        t, pos, reading = 0.0, [], []
+        for k, dt in enumerate(pin["dt"]):
+            bank.advance(t, t + dt, pin["targets"][k], pin["powered"][k])
+            t += dt
+            if k == 200:
+                bank.drop_pending()
+            pos.append(bank.pos.copy())
+            reading.append(bank.reading_rad())
+        np.testing.assert_array_equal(np.array(pos), pin[f"{name}_pos"], err_msg=name)
+        np.testing.assert_array_equal(np.array(reading), pin[f"{name}_reading"], err_msg=name)
