@@ -208,6 +208,8 @@ class Emulator:
         self.device_path = ""
         self.host_baud: int | None = None
         self._iterations = 0
+        self._external: dict[int, tuple[float, float]] = {}  # index → physical stop (rad)
+        self._rx_at_s = 0.0  # when the device last received bytes (command latency bookkeeping)
 
     # ---- lifecycle ------------------------------------------------------------------------
     def start(self) -> str:
@@ -252,11 +254,12 @@ class Emulator:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline and self._running:
             if self._pending_input() == 0:
+                # two full passes of the serving loop (it sleeps until woken: wake it each time)
                 start = self._iterations
-                if self._wake_w >= 0:
-                    with contextlib.suppress(OSError):
-                        os.write(self._wake_w, b"x")
                 while self._iterations < start + 2 and time.monotonic() < deadline:
+                    if self._wake_w >= 0:
+                        with contextlib.suppress(OSError):
+                            os.write(self._wake_w, b"x")
                     time.sleep(0.0005)
                 if self._pending_input() == 0:
                     return True
@@ -338,18 +341,21 @@ class Emulator:
 
     # ---- serving --------------------------------------------------------------------------
     def _serve(self) -> None:
-        tick = self.config.tick_s
-        next_tick = 0.0
+        """Sleep until there is something to do: bytes from the host, a reply due, or a device
+        deadline (a watchdog). Servo motion is integrated lazily (``_advance``) whenever someone
+        reads or writes, so an idle emulator does not wake at all."""
         while self._running:
             now = self.now_s()
-            wake_at = next_tick
+            wake_at: float | None = None
             with self._lock:
                 if self._outbox:
-                    wake_at = min(wake_at, self._outbox[0][0])
+                    wake_at = self._outbox[0][0]
                 deadline = self._device.next_deadline_s() if self._device else None
-            if deadline is not None:
-                wake_at = min(wake_at, deadline + 1e-4)
-            timeout = max(0.0, wake_at - now)
+            if deadline is not None:  # the first grid point at or after it
+                tick = self.config.tick_s
+                due = math.ceil(deadline / tick - 1e-9) * tick + 1e-4
+                wake_at = due if wake_at is None else min(wake_at, due)
+            timeout = None if wake_at is None else max(0.0, wake_at - now)
             try:
                 ready, _, _ = select.select([self._master, self._wake_r], [], [], timeout)
             except (OSError, ValueError):
@@ -368,23 +374,55 @@ class Emulator:
                 if data:
                     self._on_rx(data, now)
             with self._lock:
-                self._advance(now)
-            if now >= next_tick:
-                next_tick = now + tick
+                self._advance(now, exact=False)
             self._flush(now)
             self._iterations += 1
 
-    def _advance(self, now: float) -> None:
-        """Device tick, then servo dynamics up to ``now`` (caller holds the lock)."""
+    def _advance(self, now: float, exact: bool = True) -> None:
+        """Device ticks, then servo dynamics, up to ``now`` (caller holds the lock).
+
+        The device loop and the dynamics step on a fixed grid (multiples of ``tick_s``), however
+        rarely this is called. Bytes from the host split a step where they arrive (``exact``);
+        a reader does not (``exact=False`` stops at the last grid point), so the motion does not
+        depend on when anyone looked. Once nothing changes any more (the device's drive
+        unchanged over a step, every servo at rest, no delayed target queued) it jumps ahead,
+        stopping at the device's next deadline."""
         assert self._device is not None
-        self._device.tick(now)
-        dt = now - self._last_step_s
-        if dt > 0:
+        tick = self.config.tick_s
+        t = self._last_step_s
+        if not exact:
+            now = max(t, math.floor(now / tick + 1e-9) * tick)
+        if now <= t:
+            return
+        # receive() advances to its arrival time before it changes a target, so a new target has
+        # been commanded since _last_step_s: its command latency counts from there
+        first_target, first_powered = self._device.drive()
+        prev = (np.asarray(first_target).copy(), np.asarray(first_powered).copy())
+        latency_until = self._rx_at_s + self.config.command_latency_s
+        while t < now:
+            t_next = min(now, (math.floor(t / tick + 1e-9) + 1) * tick)
+            self._device.tick(t_next)
             target, powered = self._device.drive()
-            # receive() advances to its arrival time before it changes a target, so a new target
-            # has been commanded since _last_step_s: its command latency counts from there
-            self.servos.advance(self._last_step_s, now, target, powered)
-            self._last_step_s = now
+            self.servos.advance(t, t_next, target, powered)
+            self._hold_external()
+            t = t_next
+            settled = (
+                t < now
+                and t >= latency_until
+                and np.array_equal(prev[0], target)
+                and np.array_equal(prev[1], powered)
+                and not np.any(self.servos.vel)
+            )
+            prev = (np.asarray(target).copy(), np.asarray(powered).copy())
+            if settled:
+                deadline = self._device.next_deadline_s()
+                jump = now if deadline is None or deadline <= t else min(now, deadline)
+                jump = max(t, math.floor(jump / tick) * tick) if jump < now else now
+                if jump > t:
+                    self.servos.advance(t, jump, target, powered)
+                    self._hold_external()
+                    t = jump
+        self._last_step_s = now
 
     def _on_rx(self, data: bytes, now: float) -> None:
         if self._cut:
@@ -408,6 +446,7 @@ class Emulator:
             self._advance(now)
             assert self._device is not None
             replies = self._device.receive(data, now)
+            self._rx_at_s = now
         ready = now + self.config.reply_latency_s
         if self.config.latency_jitter_s:
             ready += self._jitter_rng.uniform(0.0, self.config.latency_jitter_s)
@@ -528,11 +567,38 @@ class Emulator:
         with self._lock:
             self._log.clear()
 
+    def _catch_up(self) -> None:
+        """Integrate up to now before anyone looks (lock held; no-op before start)."""
+        if self._device is not None and self._running:
+            self._advance(self.now_s(), exact=False)
+
+    def constrain(self, index: int, lower_rad: float | None, upper_rad: float | None) -> None:
+        """An outside body stops servo ``index`` (physical angle) at these bounds: a cube in the
+        gripper. The mock world's physics sets it; the servo stalls there and reads there, as a
+        real hobby servo's potentiometer does. ``None, None`` releases it."""
+        with self._lock:
+            self._catch_up()
+            if lower_rad is None and upper_rad is None:
+                self._external.pop(index, None)
+            else:
+                lo = -math.inf if lower_rad is None else lower_rad
+                hi = math.inf if upper_rad is None else upper_rad
+                self._external[index] = (lo, hi)
+                self._hold_external()
+
+    def _hold_external(self) -> None:
+        for i, (lo, hi) in self._external.items():
+            p = self.servos.pos[i]
+            if p < lo or p > hi:
+                self.servos.pos[i] = min(max(p, lo), hi)
+                self.servos.vel[i] = 0.0
+
     def true_positions_rad(self) -> np.ndarray:
         """The PHYSICAL joint angles (n_actuators,): where the links really are, for rendering
         and for tests. With a plant's joint offsets (``hardware.plant``) the host reads
         ``physical - offset``; a mock world renders these angles with the plant's links."""
         with self._lock:
+            self._catch_up()
             return self.servos.pos.copy()
 
     def torque_enabled(self) -> np.ndarray:
@@ -540,12 +606,14 @@ class Emulator:
         with self._lock:
             if self._device is None:
                 return np.zeros(self.spec.n_actuators, dtype=bool)
+            self._catch_up()
             return np.asarray(self._device.drive()[1], dtype=bool).copy()
 
     def device_targets_rad(self) -> np.ndarray:
         """What the device drives the servos towards right now, in rad (true mounting)."""
         with self._lock:
             assert self._device is not None
+            self._catch_up()
             return np.asarray(self._device.drive()[0], dtype=float).copy()
 
     def stats(self) -> dict[str, int]:

@@ -22,6 +22,7 @@ from hardware.errors import (
     SafetyError,
     SpecError,
 )
+from hardware.firmware.limits import firmware_limits
 from hardware.protocols import s2r
 from hardware.protocols.s2r import S2RFramer, encode_frame
 from hardware.serial_arm import SerialArm
@@ -347,3 +348,46 @@ def test_background_reader_swallows_line_noise(
         assert arm.stats()["rx_garbage_bytes"] > 20 * 100
         assert arm.stats()["retries"] == 0  # noise never cost a retry
         assert elapsed < 20 * 0.05
+
+
+# ---- idle: no wake-ups; lazy dynamics that do not depend on when anyone looks -------------------
+@pytest.mark.parametrize("protocol", ["s2r", "feetech", "maestro"])
+def test_an_idle_emulator_does_not_wake(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator], protocol: str
+) -> None:
+    emu = make_emulator(spec, protocol)
+    with SerialArm(spec, emu.port, protocol=protocol, timeout_s=0.2) as arm:
+        arm.enable()
+        arm.command(spec.actuator_home_rad)
+    assert emu.sync()
+    before = emu._iterations
+    time.sleep(0.3)
+    emu.true_positions_rad()  # a reader integrates the motion itself: no wake-up needed
+    assert emu._iterations == before  # no 2 ms tick: asleep until a byte or a deadline
+
+
+def _replay_with_reads(spec: ArmSpec, reads_s: list[float]) -> np.ndarray:
+    """The s2r device and servos driven by two frames, integrated at ``reads_s`` and at 0.6 s."""
+    emu = Emulator(spec, "s2r")  # never started: times are given, not read from the clock
+    device = emu._make_device(0.0)
+    emu._device = device
+    park = np.array(firmware_limits(spec).park_us)
+    frames = {
+        0.010: encode_frame(1, s2r.TORQUE, b"\x01"),
+        0.020: encode_frame(2, s2r.SET_TARGETS, s2r.encode_targets(park + 150)),
+    }
+    with emu._lock:
+        for t in sorted(set(reads_s) | set(frames) | {0.6}):
+            emu._advance(t, exact=t in frames)  # a read stops at the grid; bytes split it
+            if t in frames:
+                device.receive(frames[t], t)
+                emu._rx_at_s = t
+    return emu.servos.pos.copy()
+
+
+def test_lazy_dynamics_do_not_depend_on_when_anyone_looks(spec: ArmSpec) -> None:
+    once = _replay_with_reads(spec, [])
+    often = _replay_with_reads(spec, [k * 0.0013 for k in range(1, 400)])
+    start = np.array(spec.actuator_park_rad)
+    assert np.all(np.abs(once - start) > 0.2)  # it moved (150 us = 0.24 rad)
+    np.testing.assert_allclose(often, once, atol=1e-9)
