@@ -310,3 +310,23 @@ def test_cli_emulate_serves_the_avr_firmware(spec: ArmSpec, tmp_path: Path) -> N
     assert not link.exists()
     kinds = [json.loads(line)["kind"] for line in log.read_text().splitlines()]
     assert "targets" in kinds and kinds[-1] == "torque"
+
+
+def test_gripper_pulses_on_its_own_pin(spec: ArmSpec, make_avr: Callable[..., AvrEmulator]) -> None:
+    gripper = spec.gripper
+    assert gripper is not None
+    g = spec.n_actuators - 1
+    emu = make_avr(spec)
+    with SerialArm(spec, emu.port, protocol="s2r", timeout_s=0.2) as arm:
+        arm.enable()
+        goal = arm.read_state().positions_rad.copy()
+        goal[g] = gripper.open_rad + 1.0  # beyond the limit: clamped on the host and the chip
+        for _ in range(60):
+            sent = arm.command(goal)
+            time.sleep(0.01)
+        assert sent[g] == pytest.approx(gripper.open_rad, abs=0.005)
+        units = int(arm.calibration.to_units(sent)[g])
+        assert units <= firmware_limits(spec).upper_us[g]
+        assert emu.wait_until(lambda: emu.pulse_widths_us()[g] == units)
+        assert emu.applied("targets")[-1].applied[g] == units
+        assert emu.true_positions_rad()[g] == pytest.approx(gripper.open_rad, abs=0.05)
