@@ -72,6 +72,11 @@ class EmulatedDevice(ABC):
         """When tick() must run next at the latest (a watchdog), or None."""
         return None
 
+    def reply_delay_s(self, reply: bytes) -> float:
+        """How long the device waits before it starts sending ``reply`` (a servo's return
+        delay), on top of the emulator's processing latency."""
+        return 0.0
+
     def stats(self) -> dict[str, int]:
         return {}
 
@@ -134,6 +139,8 @@ class _StsServo:
         self.regs[ft.ADDR_FIRMWARE] = 3
         self.regs[ft.ADDR_ID] = sid
         self.regs[ft.ADDR_BAUD] = 0  # 1 Mbps
+        self.regs[ft.ADDR_RETURN_DELAY] = ft.FACTORY_RETURN_DELAY  # 500 us
+        self.regs[ft.ADDR_STATUS_RETURN_LEVEL] = ft.FACTORY_STATUS_RETURN_LEVEL
         struct.pack_into("<HH", self.regs, ft.ADDR_MIN_LIMIT, lower, upper)
         self.power_on(present)
 
@@ -177,7 +184,9 @@ class _StsServo:
 
 
 class FeetechDevice(EmulatedDevice):
-    """A bus of STS3215 servos behind one USB adapter. No watchdog: real STS servos have none."""
+    """A bus of STS3215 servos behind one USB adapter. No watchdog: real STS servos have none.
+    Factory settings except the ids (the spec's, as the hardware guide has the user set them):
+    1 Mbps, a 500 us return delay before every status packet, status return level 1."""
 
     protocol = "feetech"
 
@@ -289,7 +298,7 @@ class FeetechDevice(EmulatedDevice):
                     err = 0
                 else:
                     err = self._write_one(sid, prm[0], prm[1:], now_s)
-                if p.id != ft.BROADCAST_ID:
+                if p.id != ft.BROADCAST_ID and servo.regs[ft.ADDR_STATUS_RETURN_LEVEL] != 0:
                     out.append(self._status(sid, err))
             elif ins == ft.INST_ACTION and sid in self._pending:
                 addr, chunk = self._pending.pop(sid)
@@ -310,6 +319,10 @@ class FeetechDevice(EmulatedDevice):
 
     def tick(self, now_s: float) -> None:
         pass
+
+    def reply_delay_s(self, reply: bytes) -> float:
+        servo = self.bus.get(reply[2]) if len(reply) > 2 else None
+        return 0.0 if servo is None else 2e-6 * servo.regs[ft.ADDR_RETURN_DELAY]
 
     def drive(self) -> tuple[np.ndarray, np.ndarray]:
         goals = np.array([self.bus[s].goal for s in self.ids])

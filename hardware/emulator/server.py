@@ -453,7 +453,9 @@ class Emulator:
         if self.config.wire_timing:
             ready += len(data) * 10.0 / self.baud  # the request's own bytes on the wire
         for reply in replies:
-            self._queue_reply(reply, ready)
+            with self._lock:
+                delay = self._device.reply_delay_s(reply)
+            self._queue_reply(reply, ready, delay)
 
     def _maybe_corrupt(self, data: bytes) -> bytes | None:
         """The chunk with corrupted bytes, or None when this chunk is left alone."""
@@ -470,7 +472,7 @@ class Emulator:
                     hit = True
         return bytes(b) if hit else None
 
-    def _queue_reply(self, reply: bytes, ready: float) -> None:
+    def _queue_reply(self, reply: bytes, ready: float, delay_s: float = 0.0) -> None:
         """Send ``reply`` once the device is ready and the line is free: a UART sends one byte
         after another, so back-to-back replies (a bus answering a SYNC_READ) queue up."""
         f = self._faults
@@ -482,7 +484,7 @@ class Emulator:
             if corrupted is not None:
                 self._fault_counts["tx_corrupted"] += 1
                 reply = corrupted
-        at = max(ready, self._tx_free_at)
+        at = max(ready, self._tx_free_at) + delay_s  # a servo's return delay, then its bytes
         if self.config.wire_timing:
             at += len(reply) * 10.0 / self.baud
         self._tx_free_at = at

@@ -10,6 +10,13 @@ broadcast id 0xFE has no reply; SYNC_READ makes each listed servo answer in turn
 
 The 8-bit checksum catches every single-byte error but not every multi-byte one, so the driver
 also reads the goal registers back in every state read and rewrites a goal that did not land.
+
+Factory settings, and what the driver does about them on connect: every servo ships with id 1
+(ids are set once, per servo, as the hardware guide says; a missing id gets a hint), 1 Mbps
+(the default baud here), a 500 us return delay (``configure`` lowers it to 0, as LeRobot does,
+written to EEPROM only when different) and status return level 1 (level 0 gives no status to a
+WRITE: refused with a one-line fix). Only STS/SMS servos (little-endian) are supported: SCS
+servos are big-endian.
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from hardware.errors import DeviceResetError, ProtocolError
+from hardware.errors import DeviceResetError, NoReplyError, ProtocolError
 from hardware.joint_calibration import UnitFrame
 from hardware.protocols.base import DeviceInfo, Framer, Protocol, UnitState
 from hardware.spec import ArmSpec
@@ -58,7 +65,8 @@ ADDR_FIRMWARE = 0
 ADDR_MODEL = 3  # 2 bytes
 ADDR_ID = 5
 ADDR_BAUD = 6
-ADDR_RETURN_DELAY = 7
+ADDR_RETURN_DELAY = 7  # EEPROM, 2 us per unit; factory 250 (500 us)
+ADDR_STATUS_RETURN_LEVEL = 8  # EEPROM; factory 1 (a status packet for every instruction)
 ADDR_MIN_LIMIT = 9  # 2 bytes, EEPROM
 ADDR_MAX_LIMIT = 11  # 2 bytes, EEPROM
 ADDR_TORQUE_ENABLE = 40
@@ -75,6 +83,11 @@ ADDR_PRESENT_VOLTAGE = 62
 ADDR_PRESENT_TEMPERATURE = 63
 ADDR_MOVING = 66
 STS3215_MODEL = 777
+# Factory settings of an STS3215 (Feetech's memory table; LeRobot's configure_motors says the same
+# of the return delay): every servo ships as id 1 at 1 Mbps, waiting 500 us before it answers.
+FACTORY_ID = 1
+FACTORY_RETURN_DELAY = 250
+FACTORY_STATUS_RETURN_LEVEL = 1
 COUNTS_PER_REV = 4096
 
 # One sync read covers torque enable .. temperature: 24 bytes per servo.
@@ -266,13 +279,29 @@ class FeetechProtocol(Protocol):
 
     # ---- operations -----------------------------------------------------------------------
     def ping(self) -> DeviceInfo:
-        models = []
+        models, delays_us = [], []
         for sid in self.ids:
-            self._exchange(f"PING servo {sid}", encode_packet(sid, INST_PING), (sid,), 0)
+            try:
+                self._exchange(f"PING servo {sid}", encode_packet(sid, INST_PING), (sid,), 0)
+            except NoReplyError as exc:
+                raise NoReplyError(
+                    f"{exc}; new Feetech servos all ship with id {FACTORY_ID}: give each servo "
+                    f"its id from the spec {list(self.ids)} first (docs/hardware-guide.md)"
+                ) from None
             models.append(struct.unpack("<H", self._read(sid, ADDR_MODEL, 2))[0])
+            delay, level = self._read(sid, ADDR_RETURN_DELAY, 2)
+            if level == 0:
+                raise ProtocolError(
+                    f"feetech servo {sid} has status return level 0 (no reply to WRITE); set it "
+                    f"to {FACTORY_STATUS_RETURN_LEVEL}, its factory setting (docs/hardware-guide.md)"
+                )
+            delays_us.append(2 * delay)
         return DeviceInfo(
             protocol=self.name,
-            description=f"Feetech bus, servo ids {list(self.ids)}, models {models}",
+            description=(
+                f"Feetech bus, servo ids {list(self.ids)}, models {models}, "
+                f"return delay {delays_us} us"
+            ),
             n_actuators=self.n,
         )
 
@@ -284,13 +313,19 @@ class FeetechProtocol(Protocol):
         speed_units_per_s: np.ndarray,
     ) -> None:
         """Make the servos enforce the joint limits themselves (angle-limit registers). EEPROM
-        is written only when the values differ, to spare its write cycles."""
+        is written only when the values differ, to spare its write cycles. The factory return
+        delay (500 us per status packet, 2 ms per state read of four servos) goes to 0 the same
+        way."""
         for sid, lo, hi in zip(self.ids, lower_units, upper_units, strict=True):
             cur = struct.unpack("<HH", self._read(sid, ADDR_MIN_LIMIT, 4))
-            if cur == (int(lo), int(hi)):
+            delay = self._read(sid, ADDR_RETURN_DELAY, 1)[0]
+            if cur == (int(lo), int(hi)) and delay == 0:
                 continue
             self._write(sid, ADDR_LOCK, b"\x00")
-            self._write(sid, ADDR_MIN_LIMIT, struct.pack("<HH", int(lo), int(hi)))
+            if delay != 0:
+                self._write(sid, ADDR_RETURN_DELAY, b"\x00")
+            if cur != (int(lo), int(hi)):
+                self._write(sid, ADDR_MIN_LIMIT, struct.pack("<HH", int(lo), int(hi)))
             self._write(sid, ADDR_LOCK, b"\x01")
 
     def read_state(self) -> UnitState:

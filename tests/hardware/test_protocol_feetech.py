@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
+import pytest
 import serial
 
 from hardware.emulator import Emulator
 from hardware.protocols import feetech as ft
 from hardware.protocols.feetech import FeetechFramer, checksum, encode_packet
+from hardware.serial_arm import SerialArm
 from hardware.spec import ArmSpec
 
 
@@ -80,3 +83,41 @@ def test_emulated_bus_answers_plain_pyserial(
         entry = emu.applied("targets")[-1]
         _, hi = emu.mounting.unit_limits(spec)
         assert entry.requested == (4000,) and entry.applied == (int(hi[0]),)
+
+
+# ---- factory settings ---------------------------------------------------------------------------
+def test_factory_return_delay_and_status_level_and_what_connect_does(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    emu = make_emulator(spec, "feetech")
+    with serial.Serial(emu.port, 1_000_000, timeout=0.5) as port:
+        port.write(ft.encode_packet(1, ft.INST_READ, bytes((ft.ADDR_RETURN_DELAY, 2))))
+        reply = port.read(8)
+        assert reply[5:7] == bytes((250, 1))  # 500 us, a status for every instruction
+    with SerialArm(spec, emu.port, protocol="feetech", timeout_s=0.2) as arm:
+        assert arm.info is not None and "return delay [500, 500, 500, 500] us" in (
+            arm.info.description
+        )
+        # connect lowered the return delay to 0 (EEPROM, written once: lock restored)
+        bus = emu._device.bus  # type: ignore[union-attr]
+        for servo in bus.values():
+            assert servo.regs[ft.ADDR_RETURN_DELAY] == 0 and servo.regs[ft.ADDR_LOCK] == 1
+        arm.enable()
+        arm.command(spec.actuator_home_rad)
+
+
+def test_status_level_zero_and_missing_ids_are_one_line_fixes(
+    spec: ArmSpec, make_emulator: Callable[..., Emulator]
+) -> None:
+    from hardware.errors import NoReplyError, ProtocolError
+
+    emu = make_emulator(spec, "feetech")
+    emu._device.bus[2].regs[ft.ADDR_STATUS_RETURN_LEVEL] = 0  # type: ignore[union-attr]
+    with pytest.raises(ProtocolError, match="servo 2 has status return level 0"):
+        SerialArm(spec, emu.port, protocol="feetech", timeout_s=0.05).connect()
+    # the host expects the gripper on id 7; no servo on the bus has it
+    emu2 = make_emulator(spec, "feetech")
+    assert spec.gripper is not None
+    other = replace(spec, gripper=replace(spec.gripper, servo_id=7))
+    with pytest.raises(NoReplyError, match="ship with id 1"):
+        SerialArm(other, emu2.port, protocol="feetech", timeout_s=0.05).connect()
