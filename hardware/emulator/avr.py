@@ -111,7 +111,8 @@ class AvrEmulator:
         self.baud_actual: float | None = None
         self.min_sp: int | None = None
         self.pulses_seen = 0
-        self.pulse_error_ns: list[int] = []  # measured - nearest whole µs, for the bench
+        # every measured pulse: (simulated s, channel, width in ns), for tests and the bench
+        self.pulse_log: deque[tuple[float, int, int]] = deque(maxlen=100_000)
         self.crashed: str | None = None
         # the UART's traffic as the chip saw it: ("RX" | "TX", simulated s, bytes)
         self.traffic: deque[tuple[str, float, bytes]] = deque(maxlen=100_000)
@@ -230,8 +231,7 @@ class AvrEmulator:
             self._pulse_us[ch] = width_us
             self._powered[ch] = True
             self.pulses_seen += 1
-            if len(self.pulse_error_ns) < 100_000:
-                self.pulse_error_ns.append(width_ns - 1000 * width_us)
+            self.pulse_log.append((t_s, ch, width_ns))
         elif kind == "O":  # a pulse train stopped: the servo goes limp
             self._advance(int(parts[1]) * 1e-6)
             self._powered[int(parts[2])] = False

@@ -48,6 +48,8 @@
 #define OFF_AFTER_CYCLES (F_CPU_HZ / 40)  // 25 ms without a rising edge: the channel is off
 #define HEARTBEAT_CYCLES (F_CPU_HZ / 100)
 #define RX_BUF 4096
+#define QUIET_CYCLES (F_CPU_HZ / 200)  // 5 ms without a UART byte: the line is quiet
+#define IDLE_WAIT_S 0.005
 
 static avr_t* avr;
 static int n_ch;
@@ -64,6 +66,7 @@ static avr_cycle_count_t tx_t0;
 static uint16_t min_sp = 0xFFFF;
 static int baud_reported;
 static int pty_master = -1;
+static avr_cycle_count_t last_activity;  // last UART byte either way: keep fine steps after it
 
 static double t_us(avr_cycle_count_t c) { return (double)c * 1e6 / (double)F_CPU_HZ; }
 
@@ -88,6 +91,7 @@ static void on_uart_out(struct avr_irq_t* irq, uint32_t value, void* param) {
   (void)irq;
   (void)param;
   const uint8_t b = (uint8_t)(value & 0xFF);
+  last_activity = avr->cycle;
   if (pty_master >= 0 && write(pty_master, &b, 1) != 1) {
     // nobody reads the port: the byte is lost, as on a real wire
   }
@@ -309,6 +313,7 @@ int main(int argc, char** argv) {
         sprintf(hex + 2 * k, "%02x", b);
         ++k;
         avr_raise_irq(uart_in, b);
+        last_activity = avr->cycle;
       }
       printf("RX %.0f %s\n", t_us(avr->cycle), hex);
     }
@@ -330,10 +335,15 @@ int main(int argc, char** argv) {
     fflush(stdout);
     // 4. ahead of wall time (or nothing to do): wait for the host, at most until wall time
     //    catches up with the chip
-    const double ahead_s = t_us(avr->cycle) * 1e-6 - (now_s() - t0);
-    if (ahead_s > 0 && rx_len == 0) {
+    //    With no UART traffic for a while, wait IDLE_WAIT_S longer and then catch up in one
+    //    burst: a byte from the host ends the wait at once, and nothing else needs the chip
+    //    to be simulated the moment it happens (pulses are timed from simulated cycles).
+    double wait_s = t_us(avr->cycle) * 1e-6 - (now_s() - t0);
+    const int quiet = rx_len == 0 && avr->cycle - last_activity > QUIET_CYCLES;
+    if (quiet) wait_s = (wait_s > 0 ? wait_s : 0) + IDLE_WAIT_S;
+    if (wait_s > 0 && rx_len == 0) {
       struct pollfd fds[2] = {{master, POLLIN, 0}, {0, POLLIN, 0}};
-      const struct timespec ts = {0, (long)(ahead_s * 1e9)};
+      const struct timespec ts = {0, (long)(wait_s * 1e9)};
       ppoll(fds, 2, &ts, NULL);
     }
   }
