@@ -340,7 +340,7 @@ int main(int argc, char** argv) {
     //    to be simulated the moment it happens (pulses are timed from simulated cycles).
     double wait_s = t_us(avr->cycle) * 1e-6 - (now_s() - t0);
     const int quiet = rx_len == 0 && avr->cycle - last_activity > QUIET_CYCLES;
-    if (quiet) wait_s = (wait_s > 0 ? wait_s : 0) + IDLE_WAIT_S;
+    if (quiet && wait_s >= 0) wait_s += IDLE_WAIT_S;  // caught up: wait, then a burst
     if (wait_s > 0 && rx_len == 0) {
       struct pollfd fds[2] = {{master, POLLIN, 0}, {0, POLLIN, 0}};
       const struct timespec ts = {0, (long)(wait_s * 1e9)};
