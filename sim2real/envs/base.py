@@ -272,6 +272,14 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self.dr_params: dict[str, Any] = {}
         self._points_buf = np.zeros((1 + self.task.n_points, 3))
         self._not_blind = np.zeros(self.task.n_points)
+        # Pixel variants report the true state in info["privileged_state"], for training-only
+        # critics and teachers (sim2real.train); the observation never holds it.
+        n_priv = self._n_readings + len(self._targets) + 3 * (1 + self.task.n_points)
+        self.privileged_space = (
+            gym.spaces.Box(-np.inf, np.inf, (n_priv,), dtype=np.float32)
+            if obs_mode == "pixels"
+            else None
+        )
 
     # ---- gymnasium API ---------------------------------------------------------------------
     def reset(
@@ -304,6 +312,8 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         mujoco.mj_forward(self.model, self.data)
         obs = self._observe()
         info = {"dr": self.dr_params, "is_success": self.task.is_success(self), "start": start}
+        if self.privileged_space is not None:
+            info["privileged_state"] = self.privileged_state()
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
@@ -325,7 +335,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         if self.obs_mode != "goal":  # HER recomputes rewards from goals alone
             reward += self.task.shaping(self)
         truncated = self._steps >= self.max_episode_steps
-        info = {"is_success": success, "distance_m": d}
+        info: dict[str, Any] = {"is_success": success, "distance_m": d}
+        if self.privileged_space is not None:
+            info["privileged_state"] = self.privileged_state()
         return obs, reward, False, truncated, info
 
     def render(self) -> np.ndarray | None:
@@ -393,6 +405,16 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
 
     def _write_ctrl(self, joint_ctrl_rad: np.ndarray) -> None:
         self.twin.write_ctrl(self.data, joint_ctrl_rad, self._gripper_target())
+
+    def privileged_state(self) -> np.ndarray:
+        """True joint angles (and gripper), joint targets, then the tool and the task's points
+        (m, world): no sensor model, no delay."""
+        q = self.data.qpos[self._qadr]
+        if self.task.uses_gripper:
+            q = np.append(q, self.gripper_angle_rad())
+        tool = self.data.site_xpos[self._tool_site]
+        points = self.task.true_points(self).reshape(-1)
+        return np.concatenate([q, self._targets, tool, points]).astype(np.float32)
 
     def sense(self) -> Sensed:
         rng = self.np_random

@@ -124,7 +124,15 @@ def obs_normalization(
     if not normalize:
         return False, None
     if isinstance(observation_space, gym.spaces.Dict):
-        keys = [k for k, s in observation_space.spaces.items() if not is_image_space(s)]
+        from sim2real.train.augment import PRIVILEGED_KEY
+
+        # The privileged state is left raw too: evaluation and deployment never have it, and a
+        # saved VecNormalize must normalise what the actor alone is given.
+        keys = [
+            k
+            for k, s in observation_space.spaces.items()
+            if not is_image_space(s) and k != PRIVILEGED_KEY
+        ]
         if not keys:
             return False, None
         return True, None if len(keys) == len(observation_space.spaces) else keys

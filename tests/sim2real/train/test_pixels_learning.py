@@ -30,6 +30,7 @@ from sim2real.train.algos import DQNDiag, _DoubleQTarget
 from sim2real.train.asymmetric import AsymmetricActorCriticPolicy, PrivilegedCriticExtractor
 from sim2real.train.augment import PIXELS_KEY, PRIVILEGED_KEY, PixelActorExtractor, random_shift
 from sim2real.train.distill import Distill
+from sim2real.train.factory import obs_normalization
 from sim2real.train.wrappers import PRIVILEGED_INFO_KEY as WRAPPER_INFO_KEY
 from sim2real.train.wrappers import PrivilegedObservation
 
@@ -328,3 +329,57 @@ def test_n_step_buffer_is_sb3s(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="double_q must be true or false"):
         DQNDiag("CnnPolicy", venv, double_q="yes", **kwargs)  # type: ignore[arg-type]
     venv.close()
+
+
+# ---- the arm's pixel tasks ----------------------------------------------------------------------
+@pytest.mark.parametrize("env_id", ["reach-pixels", "pick-pixels"])
+def test_arm_pixel_envs_report_their_true_state_for_critics(env_id: str) -> None:
+    env = envs.make(env_id, dr="none")
+    try:
+        base: Any = env.unwrapped
+        obs, info = env.reset(seed=1)
+        assert obs.ndim == 3  # the observation stays a bare image
+        for _ in range(2):
+            priv = info[PRIVILEGED_INFO_KEY]
+            assert base.privileged_space.contains(priv)
+            n = base._n_readings
+            np.testing.assert_allclose(
+                priv[: base.spec_arm.n_joints], base.data.qpos[base._qadr], rtol=1e-6
+            )
+            np.testing.assert_allclose(priv[n : n + len(base._targets)], base._targets, rtol=1e-6)
+            tool = priv[n + len(base._targets) : n + len(base._targets) + 3]
+            np.testing.assert_allclose(tool, base.data.site_xpos[base._tool_site], rtol=1e-6)
+            _, _, _, _, info = env.step(np.ones(env.action_space.shape, dtype=np.float32))
+    finally:
+        env.close()
+    assert envs.make("reach").unwrapped.privileged_space is None  # state envs: none to report
+
+
+def test_asymmetric_ppo_trains_on_the_arm_reach_pixels(tmp_path: Path) -> None:
+    cfg = resolve_config(
+        "reach-pixels",
+        "ppo",
+        tmp_path / "run",
+        dr="none",
+        steps=128,
+        progress=False,
+        overrides=[
+            "n_envs=2",
+            "n_steps=64",
+            "batch_size=64",
+            "n_epochs=1",
+            "privileged_critic=true",
+            "augment.random_shift_px=2",
+            "checkpoint_every=10000",
+        ],
+    )
+    train(cfg)
+    config = RunDir(tmp_path / "run").read_config()
+    assert config["policy"] == "AsymmetricActorCriticPolicy"
+    assert config["vecnormalize"] is None  # neither the frame nor the privileged state
+    space = gym.spaces.Dict(
+        {PIXELS_KEY: IMAGE, PRIVILEGED_KEY: gym.spaces.Box(-5, 5, (9,), np.float32)}
+    )
+    assert obs_normalization(space, True) == (False, None)
+    result = evaluate(EvalTarget.load(tmp_path / "run"), episodes=2, dr="none")
+    assert result["episodes"] == 2
