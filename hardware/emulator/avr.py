@@ -113,6 +113,7 @@ class AvrEmulator:
         self.pulses_seen = 0
         # every measured pulse: (simulated s, channel, width in ns), for tests and the bench
         self.pulse_log: deque[tuple[float, int, int]] = deque(maxlen=100_000)
+        self.off_log: list[tuple[float, int]] = []  # (simulated s, channel): pulses stopped
         self.crashed: str | None = None
         # the UART's traffic as the chip saw it: ("RX" | "TX", simulated s, bytes)
         self.traffic: deque[tuple[str, float, bytes]] = deque(maxlen=100_000)
@@ -149,6 +150,12 @@ class AvrEmulator:
         self._running = True
         self._reader = threading.Thread(target=self._read_events, name="avr-events", daemon=True)
         self._reader.start()
+        # the UART drops bytes until the sketch's Serial.begin(): return once the chip booted
+        if not self.wait_until(lambda: self.baud_actual is not None, timeout_s=10.0):
+            self.stop()
+            raise HardwareError(
+                f"the AVR firmware did not start its UART ({self.crashed or 'no reason'})"
+            )
         return self.port
 
     def stop(self) -> None:
@@ -233,8 +240,10 @@ class AvrEmulator:
             self.pulses_seen += 1
             self.pulse_log.append((t_s, ch, width_ns))
         elif kind == "O":  # a pulse train stopped: the servo goes limp
-            self._advance(int(parts[1]) * 1e-6)
-            self._powered[int(parts[2])] = False
+            t_s, ch = int(parts[1]) * 1e-6, int(parts[2])
+            self._advance(t_s)
+            self._powered[ch] = False
+            self.off_log.append((t_s, ch))
         elif kind == "T":
             self._advance(int(parts[1]) * 1e-6)
             self.min_sp = int(parts[2])

@@ -8,6 +8,7 @@ CI installs them (`make avr-deps`) and `.ci/run` fails if any test here was skip
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import random
@@ -351,3 +352,36 @@ def test_gripper_pulses_on_its_own_pin(
         assert emu.wait_until(lambda: emu.pulse_widths_us()[g] == units)
         assert emu.applied("targets")[-1].applied[g] == units
         assert emu.true_positions_rad()[g] == pytest.approx(gripper.open_rad, abs=0.05)
+
+
+def test_slew_and_watchdog_run_in_chip_time(
+    spec: ArmSpec, make_avr: Callable[..., AvrEmulator]
+) -> None:
+    """In simulated 16 MHz time (not wall time): the output pulse slews at the compiled rate, and
+    with the host silent the chip holds after 250 ms and stops the pulses 500 ms later."""
+    limits = firmware_limits(spec)
+    emu = make_avr(spec)
+    target = list(limits.park_us)
+    target[0] += 150
+    with serial.Serial(emu.port, 115200, timeout=0.5) as port:
+        port.write(s2r.encode_frame(1, s2r.TORQUE, b"\x01"))
+        assert len(port.read(8)) == 8
+        time.sleep(0.1)
+        port.write(s2r.encode_frame(2, s2r.SET_TARGETS, s2r.encode_targets(target)))
+        assert len(port.read(8 + 3 + 4 * spec.n_actuators)) > 0
+        # then silence: the chip's watchdog, not the host's, ends it
+        assert emu.wait_until(lambda: len(emu.off_log) == spec.n_actuators, timeout_s=5.0)
+    replies = [t for k, t, d in emu.traffic if k == "TX"]
+    t_cmd = replies[-1]  # the STATE reply: the target was applied just before it
+    ch0 = [(t, w) for t, ch, w in emu.pulse_log if ch == 0 and t > t_cmd]
+    reached = next(t for t, w in ch0 if round(w / 1000) == target[0])
+    slew_s = 150 / limits.slew_us_per_s[0]  # 31.4 ms at 4,774 us/s
+    assert slew_s - 0.002 <= reached - t_cmd <= slew_s + 0.025  # + one 20 ms frame + a pulse
+    # 150 us in steps no bigger than one 20 ms frame's worth of slew
+    widths = [w / 1000 for _, w in ch0 if w / 1000 <= target[0] + 1]
+    assert max(b - a for a, b in itertools.pairwise(widths)) <= (limits.slew_us_per_s[0] * 0.021)
+    off_s = min(t for t, _ in emu.off_log) - t_cmd
+    wd_s = (limits.watchdog_ms + limits.hold_ms) / 1000  # 750 ms
+    assert wd_s - 0.002 <= off_s <= wd_s + 0.025  # stopped between two frames
+    # while holding, the pulses stayed at the output: no motion after the hold
+    assert all(round(w / 1000) == target[0] for t, w in ch0 if t > reached)
