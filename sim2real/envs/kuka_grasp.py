@@ -17,8 +17,9 @@ model: ``visual`` (lights, colours of tray and gripper, camera pose and fov) and
 ``object`` (size, mass, friction, spawn offset) is applied per object by the slot writer;
 ``actuation`` maps ``latency_steps`` (actions arrive late), ``max_speed_scale`` (shorter moves) and
 ``action_noise_rad`` (yaw jitter). Not applicable, sampled but ignored: ``actuation.deadband_rad``
-and ``actuation.quantisation_rad`` (hobby-servo effects; this gripper is not a hobby servo) and all
-of ``sensing`` (the policy sees pixels only; the joint and stereo sensor models have no input here).
+and ``actuation.quantisation_rad`` (hobby-servo effects; this gripper is not a hobby servo), all
+of ``sensing`` (the policy sees pixels only; the joint and stereo sensor models have no input here)
+and all of ``kinematics`` (the hobby arm's link lengths and zero offsets; there is no such arm).
 """
 
 from __future__ import annotations
@@ -77,6 +78,7 @@ PRIVILEGED_FIELDS: tuple[str, ...] = (
 )
 IGNORED_DR_KEYS: dict[str, tuple[str, ...]] = {
     "actuation": ("deadband_rad", "quantisation_rad"),
+    "kinematics": ("link_length_delta_m", "joint_offset_rad", "tool_offset_delta_m"),
     "sensing": (
         "joint_noise_rad",
         "joint_bias_rad",

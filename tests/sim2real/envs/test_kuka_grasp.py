@@ -290,7 +290,14 @@ def test_object_dr_scales_the_slots_and_restore_nominal_is_bit_exact() -> None:
     fresh = KukaGraspFastEnv(dr="none", objects="all")
     try:
         _, info = e.reset(seed=8, options={"objects": [0, 1]})
-        assert set(info["dr"]) == {"dynamics", "actuation", "sensing", "visual", "object"}
+        assert set(info["dr"]) == {
+            "dynamics",
+            "actuation",
+            "sensing",
+            "visual",
+            "object",
+            "kinematics",
+        }
         m, cat = e.model, e.catalog
         g = e.slots[0].geoms[0]
         np.testing.assert_allclose(m.geom_size[g], cat.geom_size[0, 0] * 1.2)
@@ -337,6 +344,7 @@ def test_keys_listed_as_ignored_change_nothing_and_an_applied_one_does() -> None
     points = {"deadband_rad": 0.01, "quantisation_rad": 0.003, "joint_noise_rad": 0.01}
     points |= {"joint_bias_rad": 0.02, "stereo_pixel_noise_px": 0.5}
     points |= {"position_bias_m": 0.01, "obs_delay_steps": 1.0}
+    points |= {"link_length_delta_m": 0.004, "joint_offset_rad": 0.03, "tool_offset_delta_m": 0.003}
     reference = _rollout("none")
     for category, keys in IGNORED_DR_KEYS.items():
         for key in keys:

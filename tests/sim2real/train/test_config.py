@@ -50,7 +50,8 @@ def test_every_shipped_preset_validates_and_explains_itself(name: str) -> None:
 def test_preset_lookup_prefers_env_then_task_then_default() -> None:
     assert find_preset("ppo", "reach").name == "ppo_reach.yaml"
     assert find_preset("ddpg", "Sim2Real/Arm3Reach-v0").name == "ddpg_reach.yaml"
-    assert find_preset("ppo", "trace").name == "ppo_default.yaml"
+    assert find_preset("ppo", "trace").name == "ppo_trace.yaml"
+    assert find_preset("td3", "trace").name == "td3_default.yaml"
     assert find_preset("sac", "pick-goal").name == "sac_pick_goal.yaml"
     assert find_preset("sac", "reach-goal").name == "sac_default.yaml"  # not the dense preset
     assert find_preset("ppo", "reach-pixels").name == "ppo_default.yaml"
