@@ -200,6 +200,20 @@ def test_asymmetric_ppo_trains_and_its_actor_sees_pixels_only(tmp_path: Path) ->
     np.testing.assert_array_equal(actions[:, 0], greedy)
     result = evaluate(EvalTarget.load(run_dir), episodes=3, dr="none")
     assert result["episodes"] == 3
+
+    # Export takes the actor alone: today it refuses pixel extractors with a one-line error;
+    # once it exports them, the file must take the bare frame and act as the run dir does.
+    from sim2real.export import PolicyError, export_policy
+
+    try:
+        out = export_policy(run_dir, "onnx", tmp_path / "asym.onnx")
+    except PolicyError as exc:
+        assert "\n" not in str(exc) and "feature extractor" in str(exc)
+    else:
+        exported = load_policy(out)
+        assert exported.meta.obs_keys is None and list(exported.meta.obs_shape) == [48, 48, 3]
+        np.testing.assert_array_equal(exported(frames), actions)
+
     assert resume(run_dir, steps=384, progress=False).steps_done == 384  # privileged envs again
 
 
