@@ -37,6 +37,7 @@
 #include <unistd.h>
 
 #include "avr_eeprom.h"
+#include "avr_extint.h"
 #include "avr_ioport.h"
 #include "avr_uart.h"
 #include "sim_avr.h"
@@ -208,6 +209,12 @@ int main(int argc, char** argv) {
   avr_load_firmware(avr, &fw);
   avr->frequency = F_CPU_HZ;
   avr->sleep = no_sleep;
+  // simavr polls INT0/INT1 every cycle while their pin is low ("strict" low-level trigger), even
+  // with the interrupt masked; pin 3 (INT1) carries servo pulses and is low most of the time.
+  // The firmware never enables INT0/INT1, so the poll only stops the sleeping core from jumping
+  // to its next interrupt: switch it off.
+  avr_extint_set_strict_lvl_trig(avr, 0, 0);
+  avr_extint_set_strict_lvl_trig(avr, 1, 0);
   if (argc > 3) {  // the boot counter in EEPROM: the firmware adds one at boot
     const uint16_t before = (uint16_t)(strtoul(argv[3], NULL, 0) - 1);
     uint8_t ee[2] = {(uint8_t)(before & 0xFF), (uint8_t)(before >> 8)};
@@ -326,6 +333,8 @@ int main(int argc, char** argv) {
       if (cmd[i] == 'B') {
         avr_reset(avr);
         avr->sleep = no_sleep;
+        avr_extint_set_strict_lvl_trig(avr, 0, 0);
+        avr_extint_set_strict_lvl_trig(avr, 1, 0);
         uart_xoff = 0;
         baud_reported = 0;
         for (int ch = 0; ch < n_ch; ++ch) rising[ch] = 0;
