@@ -1,4 +1,4 @@
-"""``sim2real deploy``: run a trained policy on a simulated, emulated or real arm."""
+"""``sim2real deploy``: run a trained policy of any task on a simulated, emulated or real arm."""
 
 from __future__ import annotations
 
@@ -13,7 +13,9 @@ from sim2real.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("policy", help="a run directory, or an exported .onnx / .npz policy")
+    parser.add_argument(
+        "policy", help="a run directory, an exported .onnx / .npz policy, or a shipped policy name"
+    )
     parser.add_argument("--backend", default="mock", help="sim | mock | serial (default: mock)")
     parser.add_argument("--protocol", default="s2r", help="s2r | feetech | maestro")
     parser.add_argument("--port", default=None, help="serial port or pyserial URL (serial)")
@@ -24,11 +26,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--registration", type=Path, default=None, help="base_T_cam file (calibrate register)"
     )
+    parser.add_argument(
+        "--markers", type=Path, default=None, help="marker layout YAML of a real rig (which "
+        "plates and cube are set up); default: the mock rig's"
+    )  # fmt: skip
     parser.add_argument("--spec", default=None, help="ArmSpec YAML (default: the shipped arm)")
+    parser.add_argument(
+        "--plant", default=None, help="mock: the arm as it really is (plant YAML or preset: "
+        "mild, moderate, hard); the policy keeps --spec"
+    )  # fmt: skip
+    parser.add_argument("--firmware", default="python", help="mock: python | avr (simavr)")
     parser.add_argument("--episodes", type=int, default=10)
-    parser.add_argument("--steps", type=int, default=50, help="control periods per episode")
+    parser.add_argument(
+        "--steps", type=int, default=None, help="control periods per episode (default: training's)"
+    )
     parser.add_argument("--rate", type=float, default=20.0, help="control rate in Hz")
-    parser.add_argument("--seed", type=int, default=1_000_000, help="target seed (held out)")
+    parser.add_argument("--camera-fps", type=float, default=30.0, help="mock cameras' frame rate")
+    parser.add_argument("--seed", type=int, default=1_000_000, help="placement seed (held out)")
+    parser.add_argument(
+        "--start-timeout", type=float, default=10.0,
+        help="seconds an episode waits for its objects to be seen and still",
+    )  # fmt: skip
+    parser.add_argument(
+        "--watchdog-s", type=float, default=None,
+        help="mock/sim only: a longer watchdog than the spec's, for a machine too loaded to "
+        "hold it (tests); a real arm always keeps the spec's",
+    )  # fmt: skip
     parser.add_argument("--dry-run", action="store_true", help="serial: read and log, send nothing")
     parser.add_argument("--log", type=Path, default=None, help="trajectory log (.npz)")
     parser.add_argument("--video", type=Path, default=None, help="mp4 of the left camera")
@@ -66,7 +89,12 @@ def run(args: argparse.Namespace) -> int:
         cameras=(cams[0], cams[1]),
         stereo_calibration=args.calibration,
         base_T_left=_load_base_T_cam(args.registration) if args.registration else None,
+        markers=args.markers,
         dry_run=args.dry_run,
+        camera_fps=args.camera_fps,
+        plant=args.plant,
+        firmware=args.firmware,
+        watchdog_s=args.watchdog_s,
     )
     config = LoopConfig(
         rate_hz=args.rate,
@@ -74,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         episode_steps=args.steps,
         seed=args.seed,
         dry_run=args.dry_run,
+        start_timeout_s=args.start_timeout,
     )
     result = deploy(args.policy, spec, opts, config, log_path=args.log, video_path=args.video)
     summary = {"backend": args.backend, **result.summary()}

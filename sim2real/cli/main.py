@@ -76,6 +76,7 @@ COMMANDS: tuple[Command, ...] = (
     ),
     Command("sysid", "sim2real.cli.sysid", "fit the servo model to logs; write spec + DR centre"),
     Command("replay", "sim2real.cli.replay", "read a recorded LeRobot dataset back"),
+    Command("policies", "sim2real.cli.policies", "list the shipped, measured policies"),
 )
 
 

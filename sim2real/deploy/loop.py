@@ -1,11 +1,14 @@
-"""The fixed-rate deploy loop: read → perceive → observe → infer → safety → command.
+"""The fixed-rate deploy loop: read → perceive → observe → infer → command, for any task.
 
-One loop serves every backend. What differs between them lives behind three small interfaces:
-the ``Arm`` (MuJoCo, the emulator over a pty, a real bus), a ``Perception`` (ground truth with the
-sensor model, or cameras → detect → triangulate → Kalman) and a ``World`` (places the target and,
-where it can, judges success from ground truth). The observation is built by the same
+One loop serves every backend and every task. What differs lives behind small interfaces: the
+``Arm`` (MuJoCo, the emulator over a pty, a real bus), a ``Perception`` (the truth, or free-running
+cameras → detect → triangulate → Kalman), a ``World`` (places the objects and, where it can,
+tells the truth) and the task's ``DeployContract`` (its percepts, how an episode starts, its
+observation readings, how success is judged). The observation is built by the same
 ``ObservationBuilder`` and the action decoded by the same ``ActionDecoder`` as in training.
 
+Every command passes the safety filter exactly once, inside ``Arm.command``. The loop never
+waits for a camera: it takes the newest frame pair and the trackers predict to the command time.
 On Ctrl-C or any error the arm holds, parks and goes torque-off, and the trajectory log is kept.
 """
 
@@ -14,108 +17,94 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from hardware.arm import ArmBase, ArmState
+from hardware.arm import ArmBase
 from hardware.errors import HardwareError
-from sim2real.errors import ConfigError
-from sim2real.observation import ActionDecoder, ObservationBuilder, command_readings
+from sim2real.deploy.perception import Perception
+from sim2real.deploy.policy_io import PolicyIO
+from sim2real.deploy.worlds import World
+from sim2real.envs.contract import DeployContract, MissingEstimateError, Percept, View
+from sim2real.errors import ConfigError, Sim2RealError
+from sim2real.observation import command_readings
 
 log = logging.getLogger(__name__)
 
-SECTIONS = ("read", "perceive", "infer", "safety", "command")
-Policy = Callable[[np.ndarray], np.ndarray]
+SECTIONS = ("read", "perceive", "infer", "command")
+Policy = Callable[[Any], np.ndarray]
 
 
-@dataclass(frozen=True)
-class Percept:
-    """Position estimates in the base frame; ``None`` where nothing usable was seen."""
-
-    ee_m: np.ndarray | None
-    goal_m: np.ndarray | None
-
-
-class Perception(Protocol):
-    def reset(self) -> None: ...
-
-    def perceive(self, state: ArmState, timestamp_s: float) -> Percept: ...
-
-    def close(self) -> None: ...
-
-
-class World(Protocol):
-    """What is out there besides the arm: the target, and the truth where there is one."""
-
-    def new_episode(self, rng: np.random.Generator) -> None: ...
-
-    def success(self, percept: Percept) -> tuple[bool, float]:
-        """(success, distance_m) at the end of an episode."""
-        ...
+class DeployStopError(Sim2RealError):
+    """The run stopped for a reason the user must act on (the arm is parked, the log kept)."""
 
 
 @dataclass(frozen=True)
 class LoopConfig:
     rate_hz: float = 20.0
     episodes: int = 10
-    episode_steps: int = 50
+    episode_steps: int | None = None  # None: the policy's training episode length
     seed: int = 1_000_000  # held out: training seeds are small integers
     dry_run: bool = False
-    success_threshold_m: float = 0.01
     overrun_warn_fraction: float = 0.2  # warn when a period runs 20 % long
+    start_timeout_s: float = 10.0  # how long an episode waits for its objects to be seen, still
 
     def __post_init__(self) -> None:
         if not 0.5 <= self.rate_hz <= 500:
             raise ConfigError(f"rate_hz {self.rate_hz} not in [0.5, 500]")
-        if self.episodes < 1 or self.episode_steps < 1:
+        if self.episodes < 1 or (self.episode_steps is not None and self.episode_steps < 1):
             raise ConfigError(
                 f"episodes ({self.episodes}) and episode_steps ({self.episode_steps}) must be >= 1"
             )
+        if not self.start_timeout_s > 0:
+            raise ConfigError(f"start_timeout_s {self.start_timeout_s} must be > 0")
+
+
+LOG_KEYS = (
+    "t_s",
+    "episode",
+    "step",
+    "obs",
+    "action",
+    "targets_rad",
+    "sent_rad",
+    "joints_rad",
+    "ee_est_m",
+    "ee_seen",
+    "goal_est_m",
+    "true_tool_m",
+    "period_s",
+    *(f"{s}_s" for s in SECTIONS),
+)
 
 
 @dataclass
 class LoopLog:
-    """Everything per period, for replay and sysid (saved as npz)."""
+    """Everything per period, for replay, sysid and datasets (saved as npz). ``objects`` holds
+    each tracked object's estimate (``<name>_est_m``) and blind time (``<name>_blind_s``)."""
 
-    rows: dict[str, list[Any]] = field(
-        default_factory=lambda: {
-            k: []
-            for k in (
-                "t_s",
-                "episode",
-                "step",
-                "obs",
-                "action",
-                "targets_rad",
-                "sent_rad",
-                "joints_rad",
-                "ee_est_m",
-                "goal_est_m",
-                "period_s",
-                *(f"{s}_s" for s in SECTIONS),
-            )
-        }
-    )
+    rows: dict[str, list[Any]] = field(default_factory=lambda: {k: [] for k in LOG_KEYS})
 
     def add(self, **values: Any) -> None:
         for key, value in values.items():
-            self.rows[key].append(value)
+            self.rows.setdefault(key, []).append(value)
 
     def save(self, path: Path) -> Path:
+        import io
+
         from hardware.atomic import atomic_write_bytes
 
         arrays = {}
         for key, values in self.rows.items():
             if values:
+                width = next((np.size(v) for v in values if v is not None), 1)
                 arrays[key] = np.asarray(
-                    [np.full(3, np.nan) if v is None else v for v in values], dtype=float
+                    [np.full(width, np.nan) if v is None else v for v in values], dtype=float
                 )
-        import io
-
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
         atomic_write_bytes(path, buf.getvalue())
@@ -127,29 +116,54 @@ def _percentile_ms(values: list[float], q: float) -> float:
 
 
 @dataclass
+class EpisodeRecord:
+    success: bool
+    distance_m: float
+    figures: dict[str, Any]
+    reason: str | None
+
+
+@dataclass
 class DeployResult:
-    episodes: int
-    successes: int
-    final_distances_m: list[float]
+    task: str
+    episodes: list[EpisodeRecord]
     periods_s: list[float]
     sections_s: dict[str, list[float]]
     overruns: int
-    blind_periods: int  # periods without a usable marker estimate (arm held still)
+    blind_periods: int  # periods without a usable estimate (the arm held still)
     stopped_early: str | None
     safety_stats: dict[str, int]
+    watchdog_trips: int
     rate_hz: float
+    requested_episodes: int
+
+    @property
+    def successes(self) -> int:
+        return sum(e.success for e in self.episodes)
 
     def summary(self) -> dict[str, Any]:
-        n = max(len(self.final_distances_m), 1)
+        n = max(len(self.episodes), 1)
         periods = np.asarray(self.periods_s)
         nominal = 1.0 / self.rate_hz
         jitter = np.abs(periods - nominal) if len(periods) else np.zeros(0)
+        task_figures: dict[str, Any] = {}
+        for key in self.episodes[0].figures if self.episodes else ():
+            values = [e.figures[key] for e in self.episodes if key in e.figures]
+            if all(isinstance(v, bool | np.bool_) for v in values):
+                task_figures[f"{key}_rate"] = float(np.mean(values))
+            else:
+                finite = [float(v) for v in values if math.isfinite(float(v))]
+                task_figures[f"mean_{key}"] = float(np.mean(finite)) if finite else math.nan
+        reasons = [e.reason for e in self.episodes if e.reason]
         return {
-            "episodes": len(self.final_distances_m),
+            "task": self.task,
+            "episodes": len(self.episodes),
             "success_rate": self.successes / n,
-            "mean_final_distance_m": float(np.mean(self.final_distances_m))
-            if self.final_distances_m
+            "mean_final_distance_m": float(np.nanmean([e.distance_m for e in self.episodes]))
+            if self.episodes and any(math.isfinite(e.distance_m) for e in self.episodes)
             else math.nan,
+            "task_figures": task_figures,
+            "episode_stops": reasons,
             "loop_hz": float(1.0 / periods.mean()) if len(periods) else math.nan,
             "period_jitter_ms": {
                 "p50": _percentile_ms(list(jitter), 50),
@@ -158,6 +172,7 @@ class DeployResult:
             },
             "overruns": self.overruns,
             "blind_periods": self.blind_periods,
+            "watchdog_trips": self.watchdog_trips,
             "sections_ms": {
                 s: {"p50": _percentile_ms(v, 50), "p99": _percentile_ms(v, 99)}
                 for s, v in self.sections_s.items()
@@ -168,7 +183,7 @@ class DeployResult:
 
 
 class DeployLoop:
-    """Runs ``policy`` on ``arm`` for N episodes at a fixed rate."""
+    """Runs ``policy`` on ``arm`` for N episodes of its task at a fixed rate."""
 
     def __init__(
         self,
@@ -176,19 +191,55 @@ class DeployLoop:
         perception: Perception,
         world: World,
         policy: Policy,
-        builder: ObservationBuilder,
-        decoder: ActionDecoder,
+        io: PolicyIO,
         config: LoopConfig,
         log_path: Path | None = None,
         on_frame: Callable[[], None] | None = None,
+        obs_keys: tuple[str, ...] | None = None,
     ) -> None:
         self.arm, self.perception, self.world = arm, perception, world
-        self.policy, self.builder, self.decoder = policy, builder, decoder
+        self.policy, self.io = policy, io
+        self.builder, self.decoder = io.builder, io.decoder
         self.config = config
+        self.steps = config.episode_steps or io.episode_steps
         self.log_path = log_path
         self.log = LoopLog()
         self.on_frame = on_frame
-        self._n_obs_joints = builder.fields[0].size
+        self.obs_keys = obs_keys  # dict-observation policies (HER): their key order
+        self._n_obs_joints = self.builder.fields[0].size
+        self._has_goal_delta = "target_goal_delta" in {f.name for f in self.builder.fields}
+        self._watchdog_trips = 0
+
+    # ---- one period ---------------------------------------------------------------------
+    def _observation(
+        self,
+        contract: DeployContract,
+        percept: Percept,
+        positions_rad: np.ndarray,
+        targets: np.ndarray,
+        prev_action: np.ndarray,
+        step: int,
+    ) -> Any:
+        readings = contract.readings(percept, step)
+        goal = contract.goal_m(percept, step) if self._has_goal_delta else None
+        vec = self.builder.build(
+            {
+                "joint_pos": positions_rad[: self._n_obs_joints],
+                "joint_target": targets[: self._n_obs_joints],
+                "prev_action": prev_action,
+                **readings,
+                **command_readings(self.decoder.spec, targets, goal),
+            }
+        )
+        if self.obs_keys is None:
+            return vec
+        desired = readings["goal_pos"]
+        achieved = desired - readings["goal_delta"]
+        return {
+            "observation": vec,
+            "achieved_goal": np.asarray(achieved, dtype=np.float32),
+            "desired_goal": np.asarray(desired, dtype=np.float32),
+        }
 
     def run(self) -> DeployResult:
         cfg = self.config
@@ -196,29 +247,26 @@ class DeployLoop:
         period = 1.0 / cfg.rate_hz
         sections: dict[str, list[float]] = {s: [] for s in SECTIONS}
         periods: list[float] = []
-        distances: list[float] = []
-        successes = overruns = blind = 0
+        episodes: list[EpisodeRecord] = []
+        overruns = blind = 0
         stopped: str | None = None
+        spec = self.decoder.spec
         try:
-            # Warm-up before torque is on: the first frame creates renderers / opens cameras,
-            # which would otherwise starve the host watchdog in the first period.
-            self.perception.perceive(self.arm.read_state(), time.perf_counter())
             for episode in range(cfg.episodes):
-                self.world.new_episode(rng)
-                self.perception.reset()
-                self._feed()
-                # Look before moving: the arm at home may hide a target near it.
-                self.perception.perceive(self.arm.read_state(), time.perf_counter())
-                self._feed()
-                if not cfg.dry_run:
+                contract = self.io.new_contract(spec, cfg.rate_hz)
+                if not cfg.dry_run:  # up and open: a held cube is let go, a new one is clear
                     self.arm.home()
+                self.world.new_episode(contract.placement(rng))
+                self.perception.reset()
+                percept = self._wait_until_ready(contract, episode)
+                contract.begin(percept)
                 targets = self.arm.read_state().positions_rad.copy()
                 prev_action = np.zeros(self.decoder.n_actions)
-                invalid = 0  # periods without estimates this episode (reported)
-                percept = Percept(None, None)
+                invalid = 0
+                reason: str | None = None
                 next_t = time.perf_counter()
                 last_start = next_t
-                for step in range(cfg.episode_steps):
+                for step in range(self.steps):
                     start = time.perf_counter()
                     if step > 0:
                         periods.append(start - last_start)
@@ -233,71 +281,68 @@ class DeployLoop:
                     t0 = time.perf_counter()
                     state = self.arm.read_state()
                     t1 = time.perf_counter()
-                    percept = self.perception.perceive(state, t1)
+                    percept = self.perception.perceive(state, time.monotonic())
                     t2 = time.perf_counter()
-                    if percept.ee_m is None or percept.goal_m is None:
-                        # Markers out of view: hold still (and keep the watchdogs fed). A camera
-                        # that stops delivering raises from the frame source instead.
-                        invalid += 1
-                        action = np.zeros(self.decoder.n_actions)
-                        obs = np.full(self.builder.size, np.nan, dtype=np.float32)
-                    else:
-                        obs = self.builder.build(
-                            {
-                                "joint_pos": state.positions_rad[: self._n_obs_joints],
-                                "joint_target": targets[: self._n_obs_joints],
-                                "ee_pos": percept.ee_m,
-                                "goal_pos": percept.goal_m,
-                                "goal_delta": percept.goal_m - percept.ee_m,
-                                "prev_action": prev_action,
-                                **command_readings(self.decoder.spec, targets, percept.goal_m),
-                            }
+                    try:
+                        obs = self._observation(
+                            contract, percept, state.positions_rad, targets, prev_action, step
                         )
                         action = np.asarray(self.policy(obs), dtype=float)
+                    except MissingEstimateError:
+                        # an estimate went missing (a tracker lost its object): hold still and
+                        # keep the watchdogs fed; a camera that stops delivering raises instead
+                        invalid += 1
+                        obs = np.full(self.builder.size, np.nan, dtype=np.float32)
+                        action = np.zeros(self.decoder.n_actions)
                     t3 = time.perf_counter()
                     targets = self.decoder.decode(action, targets)
-                    last = self.arm.last_sent_rad
-                    safe = self.arm.safety.filter(targets, targets if last is None else last)
+                    if cfg.dry_run:  # read and log, send nothing: the filter still judges it
+                        last = self.arm.last_sent_rad
+                        sent = self.arm.safety.filter(targets, targets if last is None else last)
+                    else:
+                        sent = self.arm.command(targets)  # safety once, inside command()
                     t4 = time.perf_counter()
-                    sent = safe if cfg.dry_run else self.arm.command(safe)
-                    t5 = time.perf_counter()
                     prev_action = np.clip(action, -1.0, 1.0)
                     for name, dt in zip(
-                        SECTIONS, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4), strict=True
+                        SECTIONS, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=True
                     ):
                         sections[name].append(dt)
-                    self.log.add(
-                        t_s=t0,
-                        episode=episode,
-                        step=step,
-                        obs=obs,
-                        action=action,
-                        targets_rad=targets,
-                        sent_rad=sent,
-                        joints_rad=state.positions_rad,
-                        ee_est_m=percept.ee_m,
-                        goal_est_m=percept.goal_m,
-                        period_s=periods[-1] if step > 0 else math.nan,
-                        **{f"{n}_s": sections[n][-1] for n in SECTIONS},
-                    )
+                    view = self.world.view(state.positions_rad, sent)
+                    if view is None:  # a real arm: judge on the estimates
+                        view = self._estimate_view(contract, percept, state.positions_rad, sent)
+                    if view is not None:
+                        reason = contract.score(view, step) or reason
+                    self._log_period(
+                        episode, step, t0, obs, action, targets, sent, state.positions_rad,
+                        percept, view, periods[-1] if step > 0 else math.nan, sections,
+                    )  # fmt: skip
                     if self.on_frame is not None:
                         self.on_frame()
+                    if reason is not None:
+                        log.warning("episode %d stopped: %s", episode, reason)
+                        break
                     next_t += period
-                    sleep = next_t - time.perf_counter()
-                    if sleep > 0:
+                    if next_t - time.perf_counter() > 0:
                         _sleep_until(next_t)
                     else:
                         next_t = time.perf_counter()  # do not try to catch up: it bursts
                 blind += invalid
-                ok, dist = self.world.success(percept)
-                successes += int(ok)
-                distances.append(dist)
-                log.info("episode %d: success=%s final distance %.4f m", episode, ok, dist)
+                out = contract.outcome()
+                episodes.append(EpisodeRecord(out.success, out.distance_m, out.figures, reason))
+                log.info(
+                    "episode %d: success=%s distance %.4f m %s",
+                    episode,
+                    out.success,
+                    out.distance_m,
+                    out.figures,
+                )
+                self._hold()
         except KeyboardInterrupt:
-            stopped = "interrupted (Ctrl-C)"
+            stopped = "interrupted (Ctrl-C or SIGTERM)"
             self._safe_stop()
         except Exception as exc:  # any error: hold, park, torque off; keep the log
             stopped = f"{type(exc).__name__}: {exc}"
+            self._count_watchdog(exc)
             self._safe_stop()
             self._save_log()
             raise
@@ -306,9 +351,8 @@ class DeployLoop:
         self._save_log()
         stats = self.arm.safety.stats
         return DeployResult(
-            episodes=len(distances),
-            successes=successes,
-            final_distances_m=distances,
+            task=self.io.task,
+            episodes=episodes,
             periods_s=periods,
             sections_s=sections,
             overruns=overruns,
@@ -319,15 +363,116 @@ class DeployLoop:
                 "nonfinite": stats.nonfinite,
                 "limit_clamped": stats.limit_clamped,
                 "step_clamped": stats.step_clamped,
+                **{k: v for k, v in vars(stats).items() if k.startswith("workspace")},
             },
+            watchdog_trips=self._watchdog_trips,
             rate_hz=cfg.rate_hz,
+            requested_episodes=cfg.episodes,
         )
 
-    def _feed(self) -> None:
-        """Between episodes (no control period running) keep the host watchdog fed by
-        re-sending the held targets: the arm does not move."""
+    # ---- episode start ----------------------------------------------------------------------
+    def _wait_until_ready(self, contract: DeployContract, episode: int) -> Percept:
+        """Hold the arm (feeding the watchdogs) until the contract's objects are seen and
+        still. Half-way through the timeout the arm parks, low and out of the cameras' way (at
+        home it may hide an object), and goes home again once they are seen: the trackers
+        coast through that. A timeout stops the run with the contract's reason."""
+        start = time.monotonic()
+        deadline = start + self.config.start_timeout_s
+        parked = self.config.dry_run
+        while True:
+            self._hold()
+            now = time.monotonic()
+            percept = self.perception.perceive(self.arm.read_state(), now)
+            waiting = contract.ready(percept, now)
+            if waiting is None and percept.tool_m is not None:
+                if parked and not self.config.dry_run:
+                    self.arm.home()
+                    percept = self.perception.perceive(self.arm.read_state(), time.monotonic())
+                return percept
+            if now > deadline:
+                raise DeployStopError(
+                    f"episode {episode} never started: {waiting or 'no tool estimate'} after "
+                    f"{self.config.start_timeout_s:.0f} s (objects {list(contract.objects)})"
+                )
+            if not parked and now - start > 0.5 * self.config.start_timeout_s:
+                parked = True
+                self.arm.park()
+            time.sleep(0.02)
+
+    def _estimate_view(
+        self,
+        contract: DeployContract,
+        percept: Percept,
+        positions_rad: np.ndarray,
+        sent: np.ndarray,
+    ) -> View | None:
+        if percept.tool_m is None:
+            return None
+        objects = {n: percept.position(n) for n in contract.objects}
+        if any(p is None for p in objects.values()):
+            return None
+        return View(
+            tool_m=percept.tool_m,
+            objects={k: v for k, v in objects.items() if v is not None},
+            actuators_rad=positions_rad,
+            truth=False,
+            blind_s={n: percept.blind_s(n) for n in contract.objects},
+            commanded_rad=sent,
+        )
+
+    def _log_period(
+        self,
+        episode: int,
+        step: int,
+        t0: float,
+        obs: Any,
+        action: np.ndarray,
+        targets: np.ndarray,
+        sent: np.ndarray,
+        positions_rad: np.ndarray,
+        percept: Percept,
+        view: View | None,
+        period_s: float,
+        sections: Mapping[str, list[float]],
+    ) -> None:
+        flat = obs["observation"] if isinstance(obs, dict) else obs
+        ee_seen = getattr(self.perception, "_ee_seen", None)
+        extra: dict[str, Any] = {}
+        for name in self.io.contract.objects:
+            extra[f"{name}_est_m"] = percept.position(name)
+            extra[f"{name}_blind_s"] = percept.blind_s(name)
+            truth = view.objects.get(name) if view is not None and view.truth else None
+            extra[f"{name}_true_m"] = truth
+        if view is not None and view.truth:
+            extra["grasped"] = math.nan if view.grasped is None else float(view.grasped)
+        first = self.io.contract.objects[0]
+        self.log.add(
+            t_s=t0,
+            episode=episode,
+            step=step,
+            obs=flat,
+            action=action,
+            targets_rad=targets,
+            sent_rad=sent,
+            joints_rad=positions_rad,
+            ee_est_m=percept.tool_m,
+            ee_seen=float(bool(ee_seen)) if ee_seen is not None else math.nan,
+            goal_est_m=percept.position(first),
+            true_tool_m=view.tool_m if view is not None and view.truth else None,
+            period_s=period_s,
+            **{f"{n}_s": sections[n][-1] for n in SECTIONS},
+            **extra,
+        )
+
+    # ---- safe states --------------------------------------------------------------------------
+    def _hold(self) -> None:
+        """Between periods (no policy running) keep every watchdog fed: the arm does not move."""
         if self.arm.is_enabled and not self.config.dry_run:
             self.arm.hold()
+
+    def _count_watchdog(self, exc: BaseException) -> None:
+        if "watchdog" in str(exc):
+            self._watchdog_trips += 1
 
     def _park(self) -> None:
         if self.config.dry_run:

@@ -1,166 +1,448 @@
-"""Where the deploy loop's end-effector and target estimates come from.
+"""Where the deploy loop's percepts come from: the tool, and the objects a task asks for.
 
-``StereoPerception`` is the real pipeline, ``calibration.perception.StereoMarkerTracker`` per
-marker: two frames → ArUco detection (sub-pixel corners, ROI around the last detection) →
-undistort + triangulate the four corners → pose fit → base frame → Kalman tracker. The target is the target plate's centre; the tool is the wrist plate's centre plus
-the plate-to-tool offset turned by the base yaw joint reading: the parallel linkage keeps the
-gripper level, so yaw is the only rotation, and the servo reads yaw more precisely than a 3 cm
-marker seen at 40° can. ``OraclePerception`` is ground truth (the ``sim`` backend without cameras).
+``StereoPerception`` is the real pipeline on a free-running frame source: each period it takes
+the newest frame pair (never waiting; a pair it has already measured is not measured again),
+runs the trackers the task needs on it, and predicts every track from the pair's capture time to
+the command time.
+
+* The tool: the wrist plate (``calibration.perception.StereoMarkerTracker``) plus the
+  plate-to-tool offset turned by the base yaw reading (the linkage keeps the gripper level).
+  When the plate is out of view it falls back to forward kinematics of the joint readings,
+  corrected by the last camera-vs-FK offset.
+* Objects, by name, from one registry (``OBJECTS``): ``target`` (the target plate), ``cube``
+  (``calibration.cube_tracker.StereoCubeTracker``: any of its five face markers), ``seam_start``
+  and ``seam_end`` (``StereoSeamTracker``: two plates beyond the seam's ends).
+
+``blind_s`` is the time since an object was last measured, counted in capture time (0 when the
+newest pair saw it), as the env's sensor model counts it. ``OraclePerception`` reads the truth
+(the ``sim`` backend): the policy still sees servo readings.
 """
 
 from __future__ import annotations
 
+import contextlib
+import math
+import os
+import threading
+import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
+from calibration.cube import MarkerCube, SeamMarkers
 from calibration.errors import CalibrationError
 from calibration.kalman import TrackerConfig
 from calibration.perception import StereoMarkerTracker
 from calibration.triangulate import StereoRig
 from hardware.arm import ArmState
+from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
 from sim2real import model as names
-from sim2real.deploy.loop import Percept
+from sim2real.deploy.frames import FramePair, FrameSource, check_fresh
+from sim2real.envs.contract import ObjectEstimate, Percept
+from sim2real.errors import ConfigError
+
+# The target plate stands still for an episode: a quiet model that coasts through occlusion
+# (the gripper covers the plate exactly when it arrives).
+QUIET = TrackerConfig(
+    model="cv", manoeuvre_std=None, process_std=0.001, init_velocity_std_mps=0.001, max_coast_s=3600
+)
 
 
 @dataclass(frozen=True)
 class MarkerLayout:
-    """Marker ids, sizes and the wrist plate's offset to the tool, in the plate frame."""
+    """Which markers this rig has, their ids and sizes (a YAML file for a real rig; the mock
+    world's by default). ``None`` for an object that is not set up."""
 
     dictionary: str = names.MARKER_DICTIONARY
-    target_id: int = names.TARGET_MARKER_ID
-    target_size_m: float = names.TARGET_MARKER_SIZE_M
     ee_id: int = names.EE_MARKER_ID
     ee_size_m: float = names.EE_MARKER_SIZE_M
     ee_marker_p_tool_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    target: tuple[int, float] | None = (names.TARGET_MARKER_ID, names.TARGET_MARKER_SIZE_M)
+    cube: MarkerCube | None = names.MARKER_CUBE
+    seam: SeamMarkers | None = names.SEAM_MARKERS
+    source: str = "the mock rig's markers"
 
     @classmethod
     def for_spec(cls, spec: ArmSpec) -> MarkerLayout:
-        """The layout the MJCF twin uses: plate on a riser on top of the wrist link."""
+        """The layout the MJCF twin uses: the wrist plate on a riser on top of the wrist link."""
         mx, my, mz = names.EE_MARKER_POS_M
         L = spec.links
         return cls(ee_marker_p_tool_m=(L.tool_forward_m - mx, -my, -L.tool_down_m - mz))
 
+    @classmethod
+    def load(cls, path: Path, spec: ArmSpec) -> MarkerLayout:
+        """A YAML file with optional ``target: {id, size_m}``, ``cube: {size_m, marker_m,
+        face_ids}`` and ``seam: {start_id, end_id, marker_m, end_offset_m}`` sections; a
+        section left out means that object is not set up on this rig."""
+        import yaml
 
-class StereoFrameSource:
-    """Anything that delivers a time-aligned pair of BGR frames (virtual or two real cameras)."""
+        try:
+            data = yaml.safe_load(Path(path).read_text()) or {}
+        except (OSError, yaml.YAMLError) as exc:
+            raise ConfigError(f"marker layout {str(path)!r}: {exc}".splitlines()[0]) from None
+        if not isinstance(data, dict):
+            raise ConfigError(f"marker layout {str(path)!r}: expected a mapping, got {data!r}")
+        base = cls.for_spec(spec)
+        try:
+            target = data.get("target")
+            cube = data.get("cube")
+            seam = data.get("seam")
+            return replace(
+                base,
+                target=None if target is None else (int(target["id"]), float(target["size_m"])),
+                cube=None
+                if cube is None
+                else MarkerCube(
+                    size_m=float(cube["size_m"]),
+                    marker_m=float(cube["marker_m"]),
+                    face_ids=tuple(int(i) for i in cube["face_ids"]),
+                ),
+                seam=None if seam is None else SeamMarkers(**seam),
+                source=str(path),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"marker layout {str(path)!r}: bad entry ({exc})") from None
 
-    def read_pair(self) -> tuple[np.ndarray, np.ndarray, float]:
-        raise NotImplementedError
+    def provides(self) -> tuple[str, ...]:
+        out = []
+        if self.target is not None:
+            out.append("target")
+        if self.cube is not None:
+            out.append("cube")
+        if self.seam is not None:
+            out += ["seam_start", "seam_end"]
+        return tuple(out)
 
-    def close(self) -> None:
-        """Release the cameras."""
+
+@dataclass(frozen=True)
+class Track:
+    """An object's filtered estimate at a frame's capture time, and how to carry it forward."""
+
+    estimate: ObjectEstimate  # at ``capture_s``; blind_s counted in capture time
+    velocity_mps: np.ndarray
+    capture_s: float
+
+    def at(self, command_s: float) -> ObjectEstimate:
+        """Predicted to the command time (at most ``MAX_PREDICT_S`` ahead: a coasting quiet
+        track has no velocity worth extrapolating further)."""
+        dt = min(max(command_s - self.capture_s, 0.0), MAX_PREDICT_S)
+        e = self.estimate
+        return ObjectEstimate(e.position_m + self.velocity_mps * dt, e.blind_s, e.yaw_rad)
+
+
+MAX_PREDICT_S = 0.2
+_ZERO3 = np.zeros(3)
+
+
+class ObjectTracker(Protocol):
+    """Tracks one or more named objects on frame pairs (in the perception thread)."""
+
+    names: tuple[str, ...]
+
+    def observe(self, pair: FramePair) -> dict[str, Track]:
+        """Measure one new pair; the tracks of the objects seen so far."""
+        ...
+
+
+class _PlateTracker:
+    names = ("target",)
+
+    def __init__(self, rig: StereoRig, base_T_left: np.ndarray, layout: MarkerLayout) -> None:
+        assert layout.target is not None
+        marker_id, size = layout.target
+        self.tracker = StereoMarkerTracker(
+            rig, base_T_left, marker_id, layout.dictionary, size, tracker=QUIET
+        )
+        self._seen_s: float | None = None
+
+    def observe(self, pair: FramePair) -> dict[str, Track]:
+        est = self.tracker.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
+        if self.tracker.last_measurement is not None:
+            self._seen_s = pair.capture_s
+        if self._seen_s is None or not est.valid:
+            return {}
+        blind = max(0.0, pair.capture_s - self._seen_s)
+        obj = ObjectEstimate(est.position_m, blind)
+        return {"target": Track(obj, est.velocity_mps, pair.capture_s)}
+
+
+class _CubeTracker:
+    names = ("cube",)
+
+    def __init__(self, rig: StereoRig, base_T_left: np.ndarray, layout: MarkerLayout) -> None:
+        from calibration.cube_tracker import StereoCubeTracker
+
+        self.tracker = StereoCubeTracker(rig, base_T_left, layout.cube)
+
+    def observe(self, pair: FramePair) -> dict[str, Track]:
+        est = self.tracker.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
+        if not est.valid:
+            return {}
+        obj = ObjectEstimate(est.position_m, est.blind_s, est.yaw_rad)
+        return {"cube": Track(obj, _ZERO3, pair.capture_s)}  # a still-object model
+
+
+class _SeamTracker:
+    names = ("seam_start", "seam_end")
+
+    def __init__(self, rig: StereoRig, base_T_left: np.ndarray, layout: MarkerLayout) -> None:
+        from calibration.cube_tracker import StereoSeamTracker
+
+        self.tracker = StereoSeamTracker(rig, base_T_left, layout.seam)
+
+    def observe(self, pair: FramePair) -> dict[str, Track]:
+        est = self.tracker.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
+        if not est.valid:
+            return {}
+        t, b = pair.capture_s, est.blind_s
+        return {
+            "seam_start": Track(ObjectEstimate(est.start_m, b), _ZERO3, t),
+            "seam_end": Track(ObjectEstimate(est.end_m, b), _ZERO3, t),
+        }
+
+
+TrackerFactory = Callable[[StereoRig, np.ndarray, MarkerLayout], Any]
+# object name → the tracker that provides it (one tracker may provide several names)
+OBJECTS: dict[str, TrackerFactory] = {
+    "target": _PlateTracker,
+    "cube": _CubeTracker,
+    "seam_start": _SeamTracker,
+    "seam_end": _SeamTracker,
+}
+
+
+class Perception(Protocol):
+    def reset(self) -> None: ...
+
+    def perceive(self, state: ArmState, command_s: float) -> Percept: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    """What the perception thread published after its last pair (replaced whole, never
+    mutated: the control loop reads it without a lock)."""
+
+    epoch: int
+    seq: int
+    capture_s: float
+    tracks: dict[str, Track]
+    fk_bias_m: np.ndarray
+    ee_seen: bool
 
 
 class StereoPerception:
-    """Two ``calibration.perception.StereoMarkerTracker`` (target plate, wrist plate) on the same
-    frame pair, plus the level-gripper offset from the wrist plate to the tool."""
+    """The wrist plate plus the task's objects, tracked on a free-running stereo source.
+
+    Detection, triangulation and filtering run in their own thread (``start``), as capture does:
+    OpenCV releases the GIL, so it uses the other core, and a slow pair never delays a command.
+    The control loop's ``perceive`` only reads the newest snapshot and predicts it to the
+    command time.
+
+    The tool estimate is forward kinematics of the fresh joint readings, corrected by what the
+    cameras saw: the wrist plate against FK at the frame's capture time. So it carries no camera
+    latency, and the camera still removes the spec's geometry errors near the current pose.
+    """
+
+    BIAS_GAIN = 0.3  # per measured pair: the correction settles within a few frames
+    WORKER_NICE = 5  # the control loop wins the core when both are runnable
 
     def __init__(
         self,
-        frames: StereoFrameSource,
+        frames: FrameSource,
         rig: StereoRig,
         base_T_left: np.ndarray,
         spec: ArmSpec,
+        objects: tuple[str, ...],
         layout: MarkerLayout | None = None,
         tracker: TrackerConfig | None = None,
         yaw_sign: float = 1.0,
     ) -> None:
         self.frames, self.rig, self.spec = frames, rig, spec
         self.layout = layout or MarkerLayout.for_spec(spec)
+        unknown = [o for o in objects if o not in OBJECTS]
+        if unknown:
+            raise ConfigError(f"no tracker for object(s) {unknown}; known: {sorted(OBJECTS)}")
+        missing = [o for o in objects if o not in self.layout.provides()]
+        if missing:
+            raise ConfigError(
+                f"the policy's task needs {', '.join(missing)}, but the marker layout "
+                f"({self.layout.source}) has no such marker set up"
+            )
+        self.objects = objects
         self.base_T_left = np.asarray(base_T_left, dtype=float)
         cfg = tracker or TrackerConfig()
-        # The target stands still for an episode: a quiet model that coasts through occlusion
-        # (the gripper covers the plate exactly when it arrives).
-        self._target_cfg = replace(
-            cfg,
-            model="cv",
-            manoeuvre_std=None,
-            process_std=0.001,
-            init_velocity_std_mps=0.001,
-            max_coast_s=3600.0,
-        )
-        # The wrist plate moves fast and can turn away: coast at most two periods, then fall
-        # back to forward kinematics corrected by the last camera-vs-FK offset.
         self._ee_cfg = replace(cfg, max_coast_s=min(cfg.max_coast_s, 0.1))
         self._offset = np.asarray(self.layout.ee_marker_p_tool_m, dtype=float)
         self._yaw_sign = spec.joints[0].sign * yaw_sign
-        self.last_frames: tuple[np.ndarray, np.ndarray] | None = None
-        self.detections = {"target": 0, "ee": 0, "periods": 0, "fk_fallback": 0}
-        self.reset()
+        self.last_pair: FramePair | None = None
+        self.detections = {"pairs": 0, "periods": 0, "ee": 0, "fk_fallback": 0, "reused": 0}
+        self._q_hist: deque[tuple[float, np.ndarray]] = deque(maxlen=400)  # ~20 s at 20 Hz
+        self._epoch = 0
+        self._reset_s = -math.inf
+        self._snapshot = _Snapshot(0, -1, -math.inf, {}, np.zeros(3), False)
+        self._error: BaseException | None = None
+        self._running = False
+        self._thread: threading.Thread | None = None
+        self._wake = threading.Event()
+        self._new_trackers()
 
-    def _tracker(self, marker_id: int, size_m: float, cfg: TrackerConfig) -> StereoMarkerTracker:
-        return StereoMarkerTracker(
-            self.rig,
-            base_T_cam=self.base_T_left,
-            marker_id=marker_id,
-            dictionary=self.layout.dictionary,
-            marker_length_m=size_m,
-            tracker=cfg,
-        )
+    @property
+    def last_frames(self) -> tuple[np.ndarray, np.ndarray] | None:
+        p = self.last_pair
+        return None if p is None else (p.left_bgr, p.right_bgr)
 
-    def reset(self) -> None:
-        lay = self.layout
-        self.target = self._tracker(lay.target_id, lay.target_size_m, self._target_cfg)
-        self.ee = self._tracker(lay.ee_id, lay.ee_size_m, self._ee_cfg)
-        self._fk_bias = np.zeros(3)
+    @property
+    def _ee_seen(self) -> bool:
+        return self._snapshot.ee_seen
 
-    def _check_size(self, left_img: np.ndarray, right_img: np.ndarray) -> None:
-        """The calibration must be for the resolution the cameras deliver."""
+    def check_frames(self, pair: FramePair) -> None:
+        """The calibration must be for the resolution the cameras deliver (before moving)."""
         for name, img, cam in (
-            ("left", left_img, self.rig.left),
-            ("right", right_img, self.rig.right),
+            ("left", pair.left_bgr, self.rig.left),
+            ("right", pair.right_bgr, self.rig.right),
         ):
             size = (img.shape[1], img.shape[0])
-            if size != cam.image_size:
+            if size != tuple(cam.image_size):
                 raise CalibrationError(
                     f"the {name} camera delivers {size[0]}x{size[1]} frames but the stereo "
                     f"calibration is for {cam.image_size[0]}x{cam.image_size[1]}: "
                     "recalibrate at this resolution or set the camera to it"
                 )
 
-    def perceive(self, state: ArmState, timestamp_s: float) -> Percept:
-        left_img, right_img, t = self.frames.read_pair()
-        if self.last_frames is None:
-            self._check_size(left_img, right_img)
-        self.last_frames = (left_img, right_img)
+    # ---- the perception thread --------------------------------------------------------------
+    def start(self) -> None:
+        self._running = True
+        self._thread = threading.Thread(target=self._work, name="perception", daemon=True)
+        self._thread.start()
+
+    def _new_trackers(self) -> None:
+        lay = self.layout
+        self.ee = StereoMarkerTracker(
+            self.rig, self.base_T_left, lay.ee_id, lay.dictionary, lay.ee_size_m, self._ee_cfg
+        )
+        self._trackers: list[ObjectTracker] = []
+        made: set[TrackerFactory] = set()
+        for name in self.objects:
+            factory = OBJECTS[name]
+            if factory not in made:
+                made.add(factory)
+                self._trackers.append(factory(self.rig, self.base_T_left, lay))
+        self._bias_n = 0
+
+    def _work(self) -> None:
+        with contextlib.suppress(OSError, AttributeError):  # Linux: per-thread nice
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.WORKER_NICE)
+        epoch, seq = -1, -1
+        bias = np.zeros(3)
+        try:
+            while self._running:
+                pair = self.frames.latest()
+                if self._epoch != epoch:  # reset() asked for fresh tracks
+                    epoch = self._epoch
+                    self._new_trackers()
+                    bias, seq = np.zeros(3), -1
+                if pair is None or pair.seq == seq or pair.capture_s < self._reset_s:
+                    # nothing new, or a frame from before the objects were placed anew
+                    self._wake.wait(0.005)
+                    self._wake.clear()
+                    continue
+                seq = pair.seq
+                self.ee.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
+                meas = self.ee.last_measurement
+                if meas is not None:
+                    bias = self._correct_fk(bias, meas.position_m, pair.capture_s)
+                tracks: dict[str, Track] = {}
+                for tracker in self._trackers:
+                    tracks.update(tracker.observe(pair))
+                self.last_pair = pair
+                self.detections["pairs"] += 1
+                self.detections["ee"] += int(meas is not None)
+                if epoch == self._epoch:  # not reset meanwhile
+                    self._snapshot = _Snapshot(
+                        epoch, seq, pair.capture_s, tracks, bias.copy(), meas is not None
+                    )
+        except BaseException as exc:  # surfaced by perceive(): perception must not die silently
+            self._error = exc
+
+    def _correct_fk(self, bias: np.ndarray, plate_m: np.ndarray, capture_s: float) -> np.ndarray:
+        """The camera measures the tool late but without the spec's geometry errors; the joint
+        readings are fresh. Compare the plate with forward kinematics of the readings at the
+        capture time and keep the (slowly varying) difference as a correction."""
+        hist = list(self._q_hist)
+        if not hist or not hist[0][0] <= capture_s <= hist[-1][0] + 0.1:
+            return bias  # no joint reading from around the capture time (the first frames)
+        times = np.array([t for t, _ in hist])
+        qs = np.array([q for _, q in hist])
+        q_cap = np.array([np.interp(capture_s, times, qs[:, j]) for j in range(qs.shape[1])])
+        yaw = self._yaw_sign * float(q_cap[0])
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx, dy, dz = self._offset
+        tool = plate_m + np.array([c * dx - s * dy, s * dx + c * dy, dz])
+        error = tool - self.spec.forward_kinematics(q_cap)
+        self._bias_n += 1
+        if self._bias_n == 1:
+            return error
+        return bias + self.BIAS_GAIN * (error - bias)
+
+    # ---- the control loop's side ------------------------------------------------------------
+    def reset(self) -> None:
+        """New episode: the objects were placed anew. Tracks restart from the next pair."""
+        self._reset_s = time.monotonic()
+        self._epoch += 1
+        self._snapshot = _Snapshot(self._epoch, -1, -math.inf, {}, self._snapshot.fk_bias_m, False)
+        self._wake.set()
+
+    def perceive(self, state: ArmState, command_s: float) -> Percept:
+        if self._error is not None:
+            raise HardwareError(f"perception stopped: {self._error}") from self._error
+        if self._thread is None:
+            raise ConfigError("StereoPerception.perceive() before start()")
+        q_now = np.asarray(state.positions_rad[: self.spec.n_joints], dtype=float)
+        self._q_hist.append((command_s, q_now))
+        pair = self.frames.latest()
+        if pair is None:
+            raise ConfigError("perceive() before the cameras delivered a frame (start them first)")
+        check_fresh(self.frames, pair, command_s)
         self.detections["periods"] += 1
-        target = self.target.observe(left_img, right_img, t)
-        plate = self.ee.observe(left_img, right_img, t)
-        seen_ee = self.ee.last_measurement is not None
-        self.detections["target"] += int(self.target.last_measurement is not None)
-        self.detections["ee"] += int(seen_ee)
-        q = state.positions_rad[: self.spec.n_joints]
-        fk = self.spec.forward_kinematics(q)
-        if plate.valid:
-            yaw = self._yaw_sign * float(q[0])
-            c, s = np.cos(yaw), np.sin(yaw)
-            dx, dy, dz = self._offset
-            ee = plate.position_m + np.array([c * dx - s * dy, s * dx + c * dy, dz])
-            if seen_ee:
-                self._fk_bias += 0.2 * ((ee - fk) - self._fk_bias)
-        else:
-            ee = fk + self._fk_bias
+        snap = self._snapshot
+        if snap.epoch != self._epoch:
+            snap = _Snapshot(self._epoch, -1, -math.inf, {}, snap.fk_bias_m, False)
+        ee = self.spec.forward_kinematics(q_now) + snap.fk_bias_m
+        if not snap.ee_seen:
             self.detections["fk_fallback"] += 1
-        return Percept(ee_m=ee, goal_m=target.position_m if target.valid else None)
+        objects = {name: track.at(command_s) for name, track in snap.tracks.items()}
+        return Percept(ee, objects)
 
     def close(self) -> None:
-        self.frames.close()
+        self._running = False
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        # the frame source belongs to whoever opened it (the world, or the backend's stack)
 
 
 class OraclePerception:
-    """Ground-truth positions (the ``sim`` backend): the policy still sees servo readings."""
+    """The truth of a world that has one (the ``sim`` backend), nothing hidden."""
 
-    def __init__(self, ee: Callable[[], np.ndarray], goal: Callable[[], np.ndarray]) -> None:
-        self._ee, self._goal = ee, goal
+    def __init__(self, truth: Callable[[], tuple[np.ndarray, dict[str, np.ndarray]]]) -> None:
+        self._truth = truth
 
     def reset(self) -> None:
         """Stateless."""
 
-    def perceive(self, state: ArmState, timestamp_s: float) -> Percept:
-        return Percept(ee_m=np.array(self._ee()), goal_m=np.array(self._goal()))
+    def perceive(self, state: ArmState, command_s: float) -> Percept:
+        tool, objects = self._truth()
+        return Percept(
+            np.array(tool), {k: ObjectEstimate(np.array(v), 0.0) for k, v in objects.items()}
+        )
 
     def close(self) -> None:
         """Nothing to release."""

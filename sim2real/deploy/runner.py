@@ -1,10 +1,11 @@
 """Wiring for ``sim2real deploy``: one registry of backends, each building (arm, perception,
-world) around the same loop. Everything opened is closed by one ExitStack, in reverse order."""
+world) around the same loop, for any task. Everything opened is closed by one ExitStack, in
+reverse order, whatever happens."""
 
 from __future__ import annotations
 
 import contextlib
-import time
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,10 +14,11 @@ from typing import Any
 import numpy as np
 
 from hardware.arm import ArmBase
-from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
-from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig, Percept, Perception, World
-from sim2real.deploy.perception import OraclePerception, StereoFrameSource, StereoPerception
+from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig
+from sim2real.deploy.perception import MarkerLayout, OraclePerception, Perception, StereoPerception
+from sim2real.deploy.policy_io import PolicyIO, policy_io
+from sim2real.deploy.worlds import World
 from sim2real.errors import ConfigError, UnknownNameError
 
 
@@ -30,9 +32,18 @@ class DeployOptions:
     cameras: tuple[int, int] = (0, 1)
     stereo_calibration: Path | None = None
     base_T_left: np.ndarray | None = None  # noqa: N815 - frame names are part of the name
+    markers: Path | None = None  # marker layout YAML (a real rig); default: the mock rig's
     dry_run: bool = False
-    camera_timeout_s: float = 1.0
-    camera_fails_after_frames: int | None = None  # mock fault injection
+    camera_timeout_s: float | None = None  # None: 1 s for real cameras, 5 s for the mock's
+    camera_fps: float = 30.0
+    camera_nice: int = 10  # mock: the render process yields to the control loop
+    camera_fails_after_s: float | None = None  # mock fault injection: the cameras hang
+    plant: str | Path | None = None  # mock: the arm as it is (a plant file or preset)
+    firmware: str = "python"  # mock: the Python firmware model or the AVR binary in simavr
+    # mock/sim only: a longer host and firmware watchdog (and serial reply timeout, 1/8 of it)
+    # than the spec's, for simulations on a machine too loaded to hold the real ones (tests
+    # under pytest -n 2). A real arm keeps the spec's.
+    watchdog_s: float | None = None
     emulator_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -42,172 +53,202 @@ class DeployOptions:
             raise ConfigError("--backend serial needs --port (for example /dev/ttyUSB0)")
         if self.dry_run and self.backend != "serial":
             raise ConfigError(f"--dry-run is for --backend serial, not {self.backend!r}")
+        if self.plant is not None and self.backend != "mock":
+            raise ConfigError(f"--plant is for --backend mock, not {self.backend!r}")
+        if self.firmware != "python" and self.backend != "mock":
+            raise ConfigError(f"--firmware is for --backend mock, not {self.backend!r}")
+        if self.watchdog_s is not None and self.backend == "serial":
+            raise ConfigError("--watchdog-s is for --backend mock|sim: a real arm keeps its spec's")
+        if not 1.0 <= self.camera_fps <= 240.0:
+            raise ConfigError(f"camera_fps {self.camera_fps} not in [1, 240]")
 
 
 Built = tuple[ArmBase, Perception, World]
-Builder = Callable[[ArmSpec, DeployOptions, contextlib.ExitStack], Built]
+Builder = Callable[[ArmSpec, PolicyIO, DeployOptions, contextlib.ExitStack], Built]
 
 
-def _build_sim(spec: ArmSpec, opts: DeployOptions, stack: contextlib.ExitStack) -> Built:
+def _build_sim(
+    spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
+) -> Built:
     from sim2real.deploy.sim_arm import SimArm
     from sim2real.deploy.worlds import SimWorld
+    from sim2real.model import RigSpec
 
-    arm = SimArm(spec, clock="realtime")
+    scene = _scene(io)
+    arm = SimArm(spec, scene=scene, clock="realtime")
     stack.enter_context(arm)
+    world = SimWorld(arm, RigSpec())
 
-    def place(p: np.ndarray) -> None:
-        arm.data.mocap_pos[0] = p
+    def truth() -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        view = world.view(arm.twin.actuator_positions(arm.data), None)
+        assert view is not None
+        return view.tool_m, dict(view.objects)
 
-    world = SimWorld(spec, arm.tool_position, place)
-    return arm, OraclePerception(arm.tool_position, lambda: world.target_m), world
+    return arm, OraclePerception(truth), world
 
 
-def _build_mock(spec: ArmSpec, opts: DeployOptions, stack: contextlib.ExitStack) -> Built:
-    from hardware.emulator.server import Emulator, EmulatorConfig
+def _scene(io: PolicyIO) -> str:
+    from sim2real.envs import TASKS
+
+    return TASKS[io.task].scene
+
+
+def _build_mock(
+    spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
+) -> Built:
+    from hardware.emulator.server import EmulatorConfig
+    from hardware.plant import Plant, load_plant
     from hardware.serial_arm import SerialArm
-    from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
+    from sim2real.deploy.virtual_cameras import stereo_rig_of
     from sim2real.deploy.worlds import MockWorld
+    from sim2real.model import RigSpec
 
-    emulator = Emulator(spec, opts.protocol, EmulatorConfig(**opts.emulator_options))
+    plant = Plant.nominal(spec) if opts.plant is None else load_plant(opts.plant)
+    plant.check_against(spec)
+    if opts.watchdog_s is not None:  # the device's watchdog lives in the plant's firmware
+        safety = dataclasses.replace(plant.spec.safety, watchdog_timeout_s=opts.watchdog_s)
+        plant = dataclasses.replace(plant, spec=dataclasses.replace(plant.spec, safety=safety))
+    config = EmulatorConfig(**opts.emulator_options)
+    emulator = _emulator(plant, opts, config)
     stack.enter_context(emulator)
-    cameras = VirtualStereoCameras(spec)
-    stack.callback(cameras.close)
-    rig, base_T_left = stereo_rig_of(cameras.rig)
-    if opts.stereo_calibration is not None:  # e.g. to check a calibration against the rig
+    rig = RigSpec()
+    # Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
+    # arrive late rather than never, so its timeout is longer than a USB camera's.
+    world = MockWorld(plant.spec, _scene(io), emulator, rig, camera_fps=opts.camera_fps,
+                      camera_timeout_s=opts.camera_timeout_s or 5.0,
+                      camera_nice=opts.camera_nice)  # fmt: skip
+    stack.callback(world.close)
+    world.start()
+    stereo, base_T_left = stereo_rig_of(rig)
+    if opts.stereo_calibration is not None:  # the user's calibration of the rendered rig
         from calibration.triangulate import StereoRig
 
-        rig = StereoRig.load(opts.stereo_calibration)
-    world = MockWorld(
-        spec,
-        emulator.true_positions_rad,
-        cameras,
-        camera_fails_after_frames=opts.camera_fails_after_frames,
-    )
-    arm = SerialArm(spec, emulator.port, opts.protocol)
+        stereo = StereoRig.load(opts.stereo_calibration)
+    if opts.base_T_left is not None:
+        base_T_left = opts.base_T_left
+    relaxed: dict[str, Any] = {}
+    if opts.watchdog_s is not None:  # a loaded machine: the emulator thread may answer late too
+        relaxed = {"host_watchdog_s": opts.watchdog_s, "timeout_s": max(0.05, opts.watchdog_s / 8)}
+    arm = SerialArm(spec, emulator.port, opts.protocol, **relaxed)
     stack.enter_context(arm)
-    perception = StereoPerception(world, rig, base_T_left, spec)
     arm.emulator = emulator  # type: ignore[attr-defined]  # tests reach the mock through the arm
+    arm.world = world  # type: ignore[attr-defined]
+    perception = _stereo_perception(world.cameras, stereo, base_T_left, spec, io, opts, stack)
+    if opts.camera_fails_after_s is not None:  # fault injection: after the first frames
+        import threading
+
+        timer = threading.Timer(opts.camera_fails_after_s, world.cameras.freeze)
+        timer.daemon = True
+        timer.start()
+        stack.callback(timer.cancel)
     return arm, perception, world
 
 
-class OpenCVStereoFrames(StereoFrameSource):
-    """Two ``cv2.VideoCapture`` devices grabbed back to back, then retrieved (best alignment
-    without hardware sync). A camera that delivers nothing within the timeout raises."""
+def _emulator(plant: Any, opts: DeployOptions, config: Any) -> Any:
+    if opts.firmware == "python":
+        return plant.emulator(opts.protocol, config)
+    from hardware.emulator import FIRMWARES
 
-    def __init__(self, indices: tuple[int, int], size: tuple[int, int], timeout_s: float) -> None:
-        import cv2
-
-        self._caps = []
-        for i in indices:
-            cap = cv2.VideoCapture(i)
-            if not cap.isOpened():
-                self.close()
-                raise HardwareError(f"camera {i} could not be opened (is it plugged in and free?)")
-            cap.set(cv2.CAP_PROP_FRAME_WIDTH, size[0])
-            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, size[1])
-            self._caps.append(cap)
-        self._size = size
-        self._timeout_s = timeout_s
-        self._indices = indices
-
-    def read_pair(self) -> tuple[np.ndarray, np.ndarray, float]:
-        deadline = time.monotonic() + self._timeout_s
-        while not all(cap.grab() for cap in self._caps):
-            if time.monotonic() > deadline:
-                raise HardwareError(
-                    f"cameras {self._indices} stopped delivering frames for {self._timeout_s} s"
-                )
-        t = time.monotonic()
-        frames = [cap.retrieve()[1] for cap in self._caps]
-        for idx, f in zip(self._indices, frames, strict=True):
-            if f is None or (f.shape[1], f.shape[0]) != self._size:
-                got = None if f is None else (f.shape[1], f.shape[0])
-                raise HardwareError(
-                    f"camera {idx} delivers {got}, but the calibration is for {self._size}: "
-                    "recalibrate or set the camera resolution"
-                )
-        return frames[0], frames[1], t
-
-    def close(self) -> None:
-        for cap in self._caps:
-            cap.release()
+    if opts.firmware not in FIRMWARES:
+        raise UnknownNameError("firmware", opts.firmware, FIRMWARES)
+    if opts.protocol != "s2r":
+        raise ConfigError(f"--firmware {opts.firmware} speaks s2r, not {opts.protocol!r}")
+    return FIRMWARES[opts.firmware](plant.spec, opts.protocol, plant.emulator_config(config))
 
 
-class CameraWorld:
-    """A real arm: nobody knows the truth, so success is judged from the camera estimates."""
+def _stereo_perception(
+    frames: Any,
+    stereo: Any,
+    base_T_left: np.ndarray,
+    spec: ArmSpec,
+    io: PolicyIO,
+    opts: DeployOptions,
+    stack: contextlib.ExitStack,
+) -> StereoPerception:
+    from sim2real.deploy.frames import wait_first
 
-    def __init__(self, threshold_m: float = 0.01) -> None:
-        self.threshold_m = threshold_m
-
-    def new_episode(self, rng: np.random.Generator) -> None:
-        """The target is wherever the user put the target marker."""
-
-    def success(self, percept: Percept) -> tuple[bool, float]:
-        if percept.ee_m is None or percept.goal_m is None:
-            return False, float("nan")
-        d = float(np.linalg.norm(percept.ee_m - percept.goal_m))
-        return d < self.threshold_m, d
+    layout = MarkerLayout.for_spec(spec)
+    if opts.markers is not None:
+        layout = MarkerLayout.load(opts.markers, spec)
+    perception = StereoPerception(frames, stereo, base_T_left, spec, io.contract.objects, layout)
+    # start-up, before torque is on: a render process imports MuJoCo
+    perception.check_frames(wait_first(frames, 60.0))
+    perception.start()
+    stack.callback(perception.close)
+    return perception
 
 
-def _build_serial(spec: ArmSpec, opts: DeployOptions, stack: contextlib.ExitStack) -> Built:
+def _build_serial(
+    spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
+) -> Built:
     from calibration.triangulate import StereoRig
     from hardware.serial_arm import SerialArm
+    from sim2real.deploy.frames import OpenCVStereoCameras
+    from sim2real.deploy.worlds import CameraWorld
 
     if opts.stereo_calibration is None or opts.base_T_left is None:
         raise ConfigError(
             "--backend serial needs --calibration (stereo) and --registration (base_T_cam)"
         )
-    rig = StereoRig.load(opts.stereo_calibration)
-    if rig.left.image_size != rig.right.image_size:
+    stereo = StereoRig.load(opts.stereo_calibration)
+    if stereo.left.image_size != stereo.right.image_size:
         raise ConfigError(
-            f"stereo calibration image sizes differ: {rig.left.image_size} vs {rig.right.image_size}"
+            f"stereo calibration image sizes differ: {stereo.left.image_size} vs "
+            f"{stereo.right.image_size}"
         )
-    frames = OpenCVStereoFrames(opts.cameras, rig.left.image_size, opts.camera_timeout_s)
+    frames = OpenCVStereoCameras(opts.cameras, stereo.left.image_size, opts.camera_timeout_s or 1.0)
     stack.callback(frames.close)
+    frames.start()
     assert opts.port is not None
     arm = SerialArm(spec, opts.port, opts.protocol, opts.baud, opts.joint_calibration)
     stack.enter_context(arm)
-    return arm, StereoPerception(frames, rig, opts.base_T_left, spec), CameraWorld()
+    perception = _stereo_perception(frames, stereo, opts.base_T_left, spec, io, opts, stack)
+    return arm, perception, CameraWorld()
 
 
 BACKENDS: dict[str, Builder] = {"sim": _build_sim, "mock": _build_mock, "serial": _build_serial}
 
 
 def deploy(
-    policy_path: str | Path,
+    policy_ref: str | Path,
     spec: ArmSpec,
     opts: DeployOptions,
     config: LoopConfig,
     log_path: Path | None = None,
     video_path: Path | None = None,
 ) -> DeployResult:
-    """Load the policy, check it fits this arm, build the backend, run the loop, clean up."""
-    import sim2real.envs as envs
+    """Load the policy (a run dir, an exported file or a shipped name), check it fits this arm,
+    build the backend around the task's contract, run the loop, clean up."""
     from sim2real.export.policy import load_policy
+    from sim2real.policies import resolve_policy
 
-    policy = load_policy(policy_path)
+    policy = load_policy(resolve_policy(policy_ref))
     meta = policy.meta
     meta.check_spec(spec.fingerprint())
-    # The decoder must scale actions as in training (presets differ: 0.05 or 0.1 rad per step).
-    env = envs.make(meta.env_id, dr="none", spec=spec, max_delta_rad=meta.max_delta_rad)
-    try:
-        base = env.unwrapped
-        assert isinstance(base, envs.Arm3Env)
-        builder, decoder = base.builder, base.decoder
-        if base.task.name != "reach":
-            raise ConfigError(
-                f"deploy runs reach policies for now; {meta.env_id!r} is task {base.task.name!r}"
-            )
-    finally:
-        env.close()
-    meta.check_layout([(f.name, f.stop - f.start) for f in builder.layout()])
-    if builder.size != meta.flat_obs_dim:
+    io = policy_io(spec, meta)
+    if abs(meta.control_hz - config.rate_hz) > 1e-9:
         raise ConfigError(
-            f"policy expects {meta.flat_obs_dim} observations, the {meta.env_id} layout has "
-            f"{builder.size}"
+            f"policy {meta.source!r} was trained at {meta.control_hz:g} Hz; deploy it at that "
+            f"rate (--rate {meta.control_hz:g}), not {config.rate_hz:g} Hz"
         )
+    return run_policy(
+        lambda obs: policy(obs), io, spec, opts, config, log_path, video_path, meta.obs_keys
+    )
+
+
+def run_policy(
+    policy: Callable[[Any], np.ndarray],
+    io: PolicyIO,
+    spec: ArmSpec,
+    opts: DeployOptions,
+    config: LoopConfig,
+    log_path: Path | None = None,
+    video_path: Path | None = None,
+    obs_keys: tuple[str, ...] | None = None,
+) -> DeployResult:
+    """Any callable policy on a backend (a scripted one in tests, a learner's actor)."""
     with contextlib.ExitStack() as stack:
-        arm, perception, world = BACKENDS[opts.backend](spec, opts, stack)
+        arm, perception, world = BACKENDS[opts.backend](spec, io, opts, stack)
         writer = None
         if video_path is not None and isinstance(perception, StereoPerception):
             import imageio.v2 as imageio
@@ -216,7 +257,7 @@ def deploy(
             stack.callback(writer.close)
 
         def on_frame() -> None:
-            frames = getattr(perception, "last_frames", None)
+            frames = perception.last_frames if isinstance(perception, StereoPerception) else None
             if writer is not None and frames is not None:
                 writer.append_data(frames[0][:, :, ::-1])
 
@@ -224,11 +265,13 @@ def deploy(
             arm,
             perception,
             world,
-            lambda obs: policy(obs),
-            builder,
-            decoder,
+            policy,
+            io,
             config,
             log_path=log_path,
             on_frame=on_frame if writer is not None else None,
+            obs_keys=obs_keys,
         )
-        return loop.run()
+        result = loop.run()
+        result.arm = arm  # type: ignore[attr-defined]  # tests inspect the mock through it
+        return result

@@ -1,96 +1,355 @@
-"""Worlds: who places the target each episode and who knows the truth.
+"""Worlds: what is out there besides the arm, who places it, and who knows the truth.
 
-``SimWorld`` and ``MockWorld`` know the true tool position (MuJoCo, or the emulator's true servo
-angles through the spec's FK), so deploy reports real success rates; on a real arm success is
-judged from the camera estimates.
+* ``SimWorld``: the ``SimArm``'s own MuJoCo scene; truth from its state.
+* ``MockWorld``: the mock arm's physics. The emulator decides where the servos are (its true,
+  physical angles after dynamics, faults and latency); MuJoCo decides what the world does about
+  it: the arm is driven kinematically from those angles, the gripper's fingers by a
+  force-limited actuator, and contacts, grasps and a falling cube are simulated. A cube between
+  the fingers stalls the emulated gripper servo where it touches, so the host reads what a real
+  servo's potentiometer would. The scene state is published to free-running virtual cameras
+  (``render_process``), which render it outside the control loop.
+* ``CameraWorld``: a real arm. Nobody knows the truth; a person places the objects.
+
+Placement and truth go through ``SceneObjects``, one name → MuJoCo mapping for every task.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import logging
+import threading
+import time
+from typing import Protocol
 
+import mujoco
 import numpy as np
 
-from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
-from sim2real.deploy.loop import Percept
-from sim2real.deploy.perception import StereoFrameSource
-from sim2real.deploy.virtual_cameras import VirtualStereoCameras
-from sim2real.envs.workspace import sample_reachable
+from sim2real import model as names
+from sim2real.envs.contract import View
+from sim2real.model import ArmTwin, RigSpec, build_mjcf
 
-TargetSampler = Callable[[np.random.Generator], np.ndarray]
-
-
-class _TargetWorld:
-    def __init__(self, spec: ArmSpec, threshold_m: float, sampler: TargetSampler | None) -> None:
-        self.spec = spec
-        self.threshold_m = threshold_m
-        self._sample = sampler or (lambda rng: sample_reachable(spec, rng))
-        self.target_m = np.zeros(3)
-
-    def new_episode(self, rng: np.random.Generator) -> None:
-        self.target_m = np.asarray(self._sample(rng), dtype=float)
-
-    def true_tool_m(self) -> np.ndarray:
-        raise NotImplementedError
-
-    def success(self, percept: Percept) -> tuple[bool, float]:
-        d = float(np.linalg.norm(self.true_tool_m() - self.target_m))
-        return d < self.threshold_m, d
+log = logging.getLogger(__name__)
 
 
-class SimWorld(_TargetWorld):
-    """Truth from the SimArm's MuJoCo state; the target is drawn in its scene."""
+class World(Protocol):
+    def new_episode(self, placement: dict[str, np.ndarray]) -> None:
+        """Put the task's objects where the contract says (a real arm: a person does)."""
+        ...
 
-    def __init__(
-        self,
-        spec: ArmSpec,
-        tool: Callable[[], np.ndarray],
-        place_target: Callable[[np.ndarray], None],
-        threshold_m: float = 0.01,
-        sampler: TargetSampler | None = None,
-    ) -> None:
-        super().__init__(spec, threshold_m, sampler)
-        self._tool, self._place = tool, place_target
+    def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
+        """The truth for judging success, or None where there is none (a real arm)."""
+        ...
 
-    def new_episode(self, rng: np.random.Generator) -> None:
-        super().new_episode(rng)
-        self._place(self.target_m)
-
-    def true_tool_m(self) -> np.ndarray:
-        return np.asarray(self._tool(), dtype=float)
+    def close(self) -> None: ...
 
 
-class MockWorld(_TargetWorld, StereoFrameSource):
-    """The emulator's true servo angles pose a rendered scene; the cameras see it."""
+def _yaw_quat(yaw_rad: float) -> np.ndarray:
+    return np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
 
-    def __init__(
-        self,
-        spec: ArmSpec,
-        true_positions: Callable[[], np.ndarray],
-        cameras: VirtualStereoCameras,
-        threshold_m: float = 0.01,
-        sampler: TargetSampler | None = None,
-        camera_fails_after_frames: int | None = None,
-    ) -> None:
-        super().__init__(spec, threshold_m, sampler)
-        self._true_positions = true_positions
-        self.cameras = cameras
-        self.frames_rendered = 0
-        self._fail_after = camera_fails_after_frames  # fault injection: a camera that dies
 
-    def true_tool_m(self) -> np.ndarray:
-        return self.spec.forward_kinematics(self._true_positions()[: self.spec.n_joints])
+class SceneObjects:
+    """The task objects of one compiled scene, ids resolved once: placing and reading them."""
 
-    def read_pair(self) -> tuple[np.ndarray, np.ndarray, float]:
-        if self._fail_after is not None and self.frames_rendered >= self._fail_after:
-            raise HardwareError(
-                f"camera stopped delivering frames after {self.frames_rendered} frames"
-            )
-        self.cameras.pose(self._true_positions(), self.target_m)
-        frames = self.cameras.read()
-        self.frames_rendered += 1
-        return frames.left_bgr, frames.right_bgr, frames.timestamp_s
+    def __init__(self, model: mujoco.MjModel, rig: RigSpec) -> None:
+        self.model, self.rig = model, rig
+        self.target_mocap = int(model.body_mocapid[model.body(names.TARGET_BODY).id])
+        self.cube_qadr = self.cube_dofadr = -1
+        self.cube_body = -1
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, names.CUBE_JOINT) >= 0:
+            j = model.joint(names.CUBE_JOINT)
+            self.cube_qadr, self.cube_dofadr = int(j.qposadr[0]), int(j.dofadr[0])
+            self.cube_body = model.body(names.CUBE_BODY).id
+            self.cube_geom = model.geom(names.CUBE_GEOM).id
+            self.finger_geoms = frozenset(model.geom(g).id for g in names.FINGER_GEOMS)
+        self.seam_mocap = -1
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, names.SEAM_BODY) >= 0:
+            self.seam_mocap = int(model.body_mocapid[model.body(names.SEAM_BODY).id])
+        self._seam = (np.zeros(3), 0.0)
+
+    def place(self, data: mujoco.MjData, placement: dict[str, np.ndarray]) -> None:
+        """Apply a contract's placement (the caller runs mj_forward)."""
+        from sim2real.deploy.virtual_cameras import target_quat_facing
+
+        for key, pose in placement.items():
+            pose = np.asarray(pose, dtype=float)
+            if key == "target":
+                data.mocap_pos[self.target_mocap] = pose[:3]
+                data.mocap_quat[self.target_mocap] = target_quat_facing(self.rig, pose[:3])
+            elif key == "cube" and self.cube_qadr >= 0:
+                half = float(self.model.geom_size[self.cube_geom][2])
+                a, v = self.cube_qadr, self.cube_dofadr
+                data.qpos[a : a + 3] = (pose[0], pose[1], half)
+                data.qpos[a + 3 : a + 7] = _yaw_quat(float(pose[2]))
+                data.qvel[v : v + 6] = 0.0
+            elif key == "seam" and self.seam_mocap >= 0:
+                data.mocap_pos[self.seam_mocap] = (pose[0], pose[1], names.SEAM_BODY_Z_M)
+                data.mocap_quat[self.seam_mocap] = _yaw_quat(float(pose[2]))
+                self._seam = (np.array([pose[0], pose[1], 0.0]), float(pose[2]))
+            else:
+                raise KeyError(f"this scene has no {key!r} to place")
+        if "target" not in placement:  # park the unused target plate out of view
+            data.mocap_pos[self.target_mocap] = (0.0, 0.0, -1.0)
+
+    def truth(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
+        out = {"target": data.mocap_pos[self.target_mocap].copy()}
+        if self.cube_body >= 0:
+            out["cube"] = data.xpos[self.cube_body].copy()
+        if self.seam_mocap >= 0:
+            start, heading = self._seam
+            d = np.array([np.cos(heading), np.sin(heading), 0.0])
+            out["seam_start"] = start
+            out["seam_end"] = start + names.SEAM_LENGTH_M * d
+        return out
+
+    def fingers_on_cube(self, data: mujoco.MjData) -> int:
+        """How many fingers touch the cube (MuJoCo's contact list)."""
+        if self.cube_body < 0:
+            return 0
+        touching: set[int] = set()
+        for i in range(data.ncon):
+            c = data.contact[i]
+            g1, g2 = int(c.geom1), int(c.geom2)
+            if g1 == self.cube_geom and g2 in self.finger_geoms:
+                touching.add(g2)
+            elif g2 == self.cube_geom and g1 in self.finger_geoms:
+                touching.add(g1)
+        return len(touching)
+
+
+class SimWorld:
+    """Truth from the ``SimArm``'s MuJoCo state; objects placed in its scene."""
+
+    def __init__(self, arm: object, rig: RigSpec) -> None:
+        from sim2real.deploy.sim_arm import SimArm
+
+        assert isinstance(arm, SimArm)
+        self.arm = arm
+        self.objects = SceneObjects(arm.model, rig)
+
+    def new_episode(self, placement: dict[str, np.ndarray]) -> None:
+        self.objects.place(self.arm.data, placement)
+        mujoco.mj_forward(self.arm.model, self.arm.data)
+
+    def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
+        """The loop's thread is the SimArm's only user: no lock needed."""
+        tool = self.arm.tool_position()  # catches physics up with the wall clock first
+        d = self.arm.data
+        cube = self.objects.cube_body >= 0
+        return View(
+            tool_m=tool,
+            objects=self.objects.truth(d),
+            actuators_rad=actuators_rad,
+            truth=True,
+            grasped=self.objects.fingers_on_cube(d) == 2 if cube else None,
+            commanded_rad=commanded_rad,
+        )
 
     def close(self) -> None:
+        """The arm owns the scene."""
+
+
+class MockWorld:
+    """The mock arm's world: emulator-driven MuJoCo physics in a real-time thread, rendered by
+    free-running virtual cameras in their own process."""
+
+    STEP_CATCH_UP_MAX = 20  # physics steps per wake-up at most (a stalled thread jumps ahead)
+    KINEMATIC_ARMATURE = 1e4  # kg·m²: the emulator's servos, not the contacts, move the arm
+
+    def __init__(
+        self,
+        spec: ArmSpec,
+        scene: str,
+        emulator: object,
+        rig: RigSpec | None = None,
+        camera_fps: float = 30.0,
+        camera_timeout_s: float = 1.0,
+        camera_nice: int = 10,
+    ) -> None:
+        """``spec`` is the arm as it really is (a plant's), not the policy's belief."""
+        from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
+
+        self.spec = spec
+        self.rig = rig or RigSpec()
+        self.emulator = emulator
+        xml = build_mjcf(spec, scene, self.rig, markers=True)
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.data = mujoco.MjData(self.model)
+        self.twin = ArmTwin(self.model, spec)
+        self.objects = SceneObjects(self.model, self.rig)
+        self.lock = threading.Lock()
+        cam = self.rig.cameras[0]
+        self.cameras = RenderedStereoCameras(
+            RenderConfig(
+                xml=xml,
+                width_px=cam.width_px,
+                height_px=cam.height_px,
+                fps=camera_fps,
+                nice=camera_nice,
+                timeout_s=camera_timeout_s,
+            ),
+            self.model.nq,
+            self.model.nmocap,
+        )
+        n = spec.n_joints
+        self._n = n
+        self._arm_dofs = np.append(self.twin.dofadr, self.model.joint(names.WRIST_JOINT).dofadr[0])
+        self._grip_index = n if spec.gripper is not None else -1
+        self._running = False
+        self._thread: threading.Thread | None = None
+        self._blocked = False
+        self.steps = 0
+        self.error: BaseException | None = None
+        self._make_arm_kinematic()
+        q = self._positions()
+        self.twin.set_pose(self.data, q, q[self._grip_index] if self._grip_index >= 0 else None)
+        self._pose(q, np.zeros(len(self._arm_dofs)), self._grip_goal(q))
+        self.data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+
+    # ---- lifecycle --------------------------------------------------------------------------
+    def start(self) -> None:
+        self.cameras.start()
+        self._publish(time.monotonic())
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name="mock-physics", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
         self.cameras.close()
+
+    # ---- physics ----------------------------------------------------------------------------
+    def _positions(self) -> np.ndarray:
+        return np.asarray(self.emulator.true_positions_rad(), dtype=float)  # type: ignore[attr-defined]
+
+    def _make_arm_kinematic(self) -> None:
+        """The arm follows the emulator exactly: its joints get an inertia no contact can move
+        and no actuator force, and each step sets the velocity that lands them on the servo
+        angles. (Overwriting ``qpos`` instead would throw away the contact solver's friction,
+        and a grasped cube slips out.)"""
+        m = self.model
+        m.dof_armature[self._arm_dofs] = self.KINEMATIC_ARMATURE
+        m.dof_damping[self._arm_dofs] = 0.0
+        m.dof_frictionloss[self._arm_dofs] = 0.0
+        for i in range(self._n):
+            m.actuator_gainprm[i, 0] = 0.0
+            m.actuator_biasprm[i, :3] = 0.0
+
+    def _pose(self, q_rad: np.ndarray, qvel_arm: np.ndarray, grip_rad: float | None) -> None:
+        """Velocities that bring the arm onto ``q_rad`` in one step; the finger actuator pushes
+        to ``grip_rad``."""
+        del qvel_arm
+        dt = float(self.model.opt.timestep)
+        goal = np.append(q_rad[: self._n], self._wrist_rad(q_rad))
+        now = np.append(self.twin.joint_positions(self.data), self.data.qpos[self.twin.wrist_qadr])
+        self.data.qvel[self._arm_dofs] = (goal - now) / dt
+        if self._grip_index >= 0 and grip_rad is not None:
+            self.twin.write_ctrl(self.data, q_rad[: self._n], grip_rad)
+
+    def _wrist_rad(self, q_rad: np.ndarray) -> float:
+        j = self.spec.joints
+        return -(j[1].sign * q_rad[1] + j[2].sign * q_rad[2])
+
+    def _run(self) -> None:
+        dt = float(self.model.opt.timestep)
+        t0 = time.monotonic()
+        done = 0
+        prev = self._positions()
+        try:
+            while self._running:
+                now = time.monotonic()
+                behind = int((now - t0) / dt) - done
+                if behind > self.STEP_CATCH_UP_MAX:  # stalled (a loaded machine): jump ahead
+                    done += behind - self.STEP_CATCH_UP_MAX
+                    behind = self.STEP_CATCH_UP_MAX
+                if behind > 0:
+                    q = self._positions()
+                    dq = q - prev
+                    joints = np.append(dq[: self._n], self._wrist_rad(dq))
+                    qvel = joints / (behind * dt)
+                    grip = self._grip_goal(q)
+                    with self.lock:
+                        for k in range(1, behind + 1):  # servo motion spread over the steps
+                            self._pose(prev + dq * (k / behind), qvel, grip)
+                            mujoco.mj_step(self.model, self.data)
+                        self.steps += behind
+                        self._gripper_feedback(q)
+                    prev = q
+                    done += behind
+                    self._publish(now)
+                time.sleep(max(0.0, t0 + (done + 1) * dt - time.monotonic()))
+        except BaseException as exc:  # surfaced by view(): a dead world must stop the loop
+            self.error = exc
+            log.error("mock physics stopped: %s", exc)
+
+    def _grip_goal(self, q_rad: np.ndarray) -> float | None:
+        """Where the finger actuator pushes: with the fingers on the cube, to the servo's own
+        target (a stalled servo pushes at full torque while its horn stands still); free, to
+        where the emulated servo is, so the fingers move with its dynamics."""
+        if self._grip_index < 0:
+            return None
+        if self._blocked:
+            targets = getattr(self.emulator, "device_targets_rad", None)
+            if targets is not None:
+                return float(targets()[self._grip_index])
+        return float(q_rad[self._grip_index])
+
+    def _gripper_feedback(self, q_rad: np.ndarray) -> None:
+        """While the fingers touch the cube, MuJoCo decides where they are: the emulated servo
+        is pinned there (it stalls, and reads where it stalls); released when they let go."""
+        constrain = getattr(self.emulator, "constrain", None)
+        if self._grip_index < 0 or constrain is None:
+            return
+        touching = self.objects.fingers_on_cube(self.data) > 0
+        if touching:
+            physical = self.twin.gripper_rad(self.data)
+            constrain(self._grip_index, physical, physical)
+            self._blocked = True
+        elif self._blocked:
+            constrain(self._grip_index, None, None)
+            self._blocked = False
+
+    def _publish(self, t_s: float) -> None:
+        d = self.data
+        with self.lock:
+            qpos, mpos, mquat = d.qpos.copy(), d.mocap_pos.copy(), d.mocap_quat.copy()
+        self.cameras.publish(t_s, qpos, mpos, mquat)
+
+    # ---- the world interface ----------------------------------------------------------------
+    def new_episode(self, placement: dict[str, np.ndarray]) -> None:
+        with self.lock:
+            self.objects.place(self.data, placement)
+            mujoco.mj_forward(self.model, self.data)
+        self._publish(time.monotonic())
+
+    def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
+        if self.error is not None:
+            raise RuntimeError(f"mock physics stopped: {self.error}") from self.error
+        with self.lock:
+            d = self.data
+            return View(
+                tool_m=self.twin.tool_position(d).copy(),
+                objects=self.objects.truth(d),
+                actuators_rad=actuators_rad,
+                truth=True,
+                grasped=self.objects.fingers_on_cube(d) == 2
+                if self.objects.cube_body >= 0
+                else None,
+                commanded_rad=commanded_rad,
+            )
+
+
+class CameraWorld:
+    """A real arm: a person places the objects; success is judged from the camera estimates."""
+
+    def new_episode(self, placement: dict[str, np.ndarray]) -> None:
+        """Nothing to do: the loop waits until the contract's objects are seen and still."""
+
+    def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
+        return None
+
+    def close(self) -> None:
+        """Nothing to release."""

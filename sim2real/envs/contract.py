@@ -101,9 +101,10 @@ class DeployContract(ABC):
         that can place things does at the start, with the env's own distribution."""
 
     def ready(self, percept: Percept, t_s: float) -> str | None:
-        """None once every object is seen and has stood still; otherwise why not yet."""
+        """None once every object has been seen and its estimate has stood still for
+        ``still_window_s``; otherwise why not yet."""
         seen = {n: percept.position(n) for n in self.objects}
-        missing = [n for n, p in seen.items() if p is None or percept.blind_s(n) > 0.0]
+        missing = [n for n, p in seen.items() if p is None]
         if missing:
             self._recent.clear()
             return f"waiting to see {', '.join(missing)}"
@@ -145,12 +146,18 @@ class DeployContract(ABC):
         """Success and figures once the episode is over."""
 
 
-def require_objects(percept: Percept, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The named object positions, or KeyError naming the first missing one."""
-    out = {}
-    for name in names:
+class MissingEstimateError(LookupError):
+    """A percept the observation needs is not available this period (the loop holds still)."""
+
+
+def need(percept: Percept, *object_names: str) -> tuple[np.ndarray, ...]:
+    """(tool, *objects) positions, or ``MissingEstimateError`` naming the first one missing."""
+    if percept.tool_m is None:
+        raise MissingEstimateError("tool")
+    out = [percept.tool_m]
+    for name in object_names:
         p = percept.position(name)
         if p is None:
-            raise KeyError(name)
-        out[name] = p
-    return out
+            raise MissingEstimateError(name)
+        out.append(p)
+    return tuple(out)

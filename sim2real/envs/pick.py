@@ -9,7 +9,7 @@ import numpy as np
 
 from sim2real import model as names
 from sim2real.envs.base import START_DEFAULT, START_HELD, Sensed, Task, register_task
-from sim2real.envs.contract import DeployContract, Outcome, Percept, View
+from sim2real.envs.contract import DeployContract, Outcome, Percept, View, need
 from sim2real.errors import ConfigError
 from sim2real.observation import ObsField
 
@@ -88,13 +88,11 @@ class PickContract(DeployContract):
         return {"cube": np.array([xy[0], xy[1], yaw])}
 
     def begin(self, percept: Percept) -> None:
-        cube = percept.position("cube")
-        assert cube is not None
+        _, cube = need(percept, "cube")
         self.goal = lift_goal(cube)
 
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
-        tool, cube = percept.tool_m, percept.position("cube")
-        assert tool is not None and cube is not None
+        tool, cube = need(percept, "cube")
         blind = percept.blind_s("cube")
         self._periods += 1
         self._blind_periods += int(blind > 0.0)

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sim2real.envs.base import Sensed, Task, register_task
-from sim2real.envs.contract import DeployContract, Outcome, Percept, View
+from sim2real.envs.contract import DeployContract, Outcome, Percept, View, need
 from sim2real.envs.workspace import sample_reachable
 
 if TYPE_CHECKING:
@@ -31,8 +31,7 @@ class ReachContract(DeployContract):
         return {"target": sample_reachable(self.spec, rng)}
 
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
-        tool, target = percept.tool_m, percept.position("target")
-        assert tool is not None and target is not None
+        tool, target = need(percept, "target")
         return {"ee_pos": tool, "goal_pos": target, "goal_delta": target - tool}
 
     def goal_m(self, percept: Percept, step: int) -> np.ndarray | None:

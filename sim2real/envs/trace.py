@@ -10,7 +10,7 @@ import numpy as np
 from hardware.spec import ArmSpec
 from sim2real import model as names
 from sim2real.envs.base import Sensed, Task, register_task
-from sim2real.envs.contract import DeployContract, Outcome, Percept, View
+from sim2real.envs.contract import DeployContract, Outcome, Percept, View, need
 from sim2real.observation import ObsField
 
 if TYPE_CHECKING:
@@ -78,13 +78,11 @@ class TraceContract(DeployContract):
         return np.array([start_m[0], start_m[1], STANDOFF_M]), d
 
     def begin(self, percept: Percept) -> None:
-        start, end = percept.position("seam_start"), percept.position("seam_end")
-        assert start is not None and end is not None
+        _, start, end = need(percept, "seam_start", "seam_end")
         self._start, self._dir = self._line(start, end)
 
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
-        tool = percept.tool_m
-        assert tool is not None
+        (tool,) = need(percept)
         target, vel = seam_point(self._start, self._dir, step, self.episode_steps, self.dt_s)
         return {
             "ee_pos": tool,

@@ -1,15 +1,14 @@
-"""Shared pieces for deploy tests: a scripted IK policy that speaks the observation contract."""
+"""Shared pieces for deploy tests: scripted policies that speak the observation contract."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
-import sim2real.envs  # noqa: F401
 from hardware.spec import ArmSpec, load_spec
+from sim2real.deploy.policy_io import PolicyIO, io_for
 from sim2real.observation import ActionDecoder, ObservationBuilder
 
 
@@ -19,12 +18,18 @@ def spec() -> ArmSpec:
 
 
 @pytest.fixture(scope="session")
-def reach_contract() -> tuple[ObservationBuilder, ActionDecoder]:
-    env = gym.make("Sim2Real/Arm3Reach-v0", dr="none")
-    u = env.unwrapped
-    out = (u.builder, u.decoder)
-    env.close()
-    return out
+def reach_io(spec: ArmSpec) -> PolicyIO:
+    return io_for(spec, "Sim2Real/Arm3Reach-v0")
+
+
+@pytest.fixture(scope="session")
+def pick_io(spec: ArmSpec) -> PolicyIO:
+    return io_for(spec, "Sim2Real/Arm3Pick-v0")
+
+
+@pytest.fixture(scope="session")
+def reach_contract(reach_io: PolicyIO) -> tuple[ObservationBuilder, ActionDecoder]:
+    return reach_io.builder, reach_io.decoder
 
 
 def ik_policy(
@@ -40,5 +45,53 @@ def ik_policy(
         if q_goal is None:
             return np.zeros(decoder.n_actions)
         return np.clip(gain * (q_goal - q) / decoder.max_delta_rad, -1.0, 1.0)
+
+    return policy
+
+
+def pick_policy(
+    spec: ArmSpec, builder: ObservationBuilder, decoder: ActionDecoder, let_go_at_m: float = 0.0
+) -> Callable[[np.ndarray], np.ndarray]:
+    """A scripted grasp from the observation alone: above the cube, down, close, lift to the
+    goal. Steers on the commanded pose (``target_ee_pos``), as the env's IK test does. With
+    ``let_go_at_m`` it opens the gripper once the tool is that high above the grasp (a drop)."""
+    sl = {f.name: slice(f.start, f.stop) for f in builder.layout()}
+    n = spec.n_joints
+    state = {"phase": "above", "steps": 0, "grasp_z": 0.0}
+
+    def toward(q_cmd: np.ndarray, p: np.ndarray) -> np.ndarray:
+        q_goal = spec.inverse_kinematics(p)
+        if q_goal is None:
+            return np.zeros(n)
+        return np.clip((q_goal - q_cmd) / decoder.max_delta_rad, -1.0, 1.0)
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        cube, goal = obs[sl["cube_pos"]], obs[sl["goal_pos"]]
+        q_cmd = obs[sl["joint_target"]][:n]
+        tool = obs[sl["target_ee_pos"]]
+        a = np.zeros(decoder.n_actions)
+        phase = state["phase"]
+        state["steps"] += 1
+        if obs[sl["prev_action"]][n] == 0.0 and state["steps"] > 1:  # a new episode began
+            state.update(phase="above", steps=1)
+            phase = "above"
+        if phase == "above":
+            above = cube + (0.0, 0.0, 0.05)
+            a[:n], a[n] = toward(q_cmd, above), 1.0
+            if np.linalg.norm(tool - above) < 0.004:
+                state["phase"] = "down"
+        elif phase == "down":
+            a[:n], a[n] = toward(q_cmd, cube), 1.0
+            if np.linalg.norm(tool - cube) < 0.003:
+                state.update(phase="close", since=state["steps"], grasp_z=float(tool[2]))
+        elif phase == "close":
+            a[:n], a[n] = toward(q_cmd, cube), -1.0
+            if state["steps"] - state["since"] >= 8:
+                state["phase"] = "lift"
+        else:
+            a[:n], a[n] = toward(q_cmd, goal + (0.0, 0.0, 0.02)), -1.0
+            if let_go_at_m and tool[2] - state["grasp_z"] > let_go_at_m:
+                a[n] = 1.0
+        return a
 
     return policy

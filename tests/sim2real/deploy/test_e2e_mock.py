@@ -39,17 +39,19 @@ def test_mock_deployment_keeps_the_sim_success_of_the_same_policy(
     p_sim = sim["success_rate"]
     assert p_sim >= 0.5, f"the cached policy is too weak to judge transfer: {p_sim}"
     log = tmp_path / "mock.npz"
+    # --watchdog-s: under pytest -n 2 a period may run long; this test judges the chain, not the
+    # timing (bench/deploy_mock.py holds the 20 Hz and watchdog targets).
     mock = _cli(
         "deploy", str(run_dir), "--backend", "mock", "--episodes", str(MOCK_EPISODES),
-        "--log", str(log), "--json",
+        "--log", str(log), "--json", "--watchdog-s", "2", "--start-timeout", "60",
     )  # fmt: skip
     assert mock["episodes"] == MOCK_EPISODES and mock["stopped_early"] is None
     # Threshold derived from the sim success: 90 % of it, less two binomial standard errors of a
     # 10-episode estimate (so a sound chain fails this by chance < 3 % of the time).
     threshold = 0.9 * p_sim - 2 * math.sqrt(p_sim * (1 - p_sim) / MOCK_EPISODES)
     assert mock["success_rate"] >= threshold, (mock, p_sim, threshold)
-    assert 15.0 < mock["loop_hz"] < 21.0
-    assert set(mock["sections_ms"]) == {"read", "perceive", "infer", "safety", "command"}
+    assert mock["task"] == "reach" and mock["watchdog_trips"] == 0
+    assert set(mock["sections_ms"]) == {"read", "perceive", "infer", "command"}
     assert log.is_file()
 
 

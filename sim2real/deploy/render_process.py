@@ -1,0 +1,275 @@
+"""Virtual cameras as a free-running device: the mock world's two cameras render in their own
+process, as USB cameras capture outside the host's control loop.
+
+The physics thread publishes the scene state (``qpos``, mocap poses, the time) into shared memory;
+the render process snapshots it at the camera rate, renders both cameras and publishes the pair
+with the snapshot's time as its capture time. The control loop reads the newest pair without
+waiting. Rendering on CPU (llvmpipe) costs tens of milliseconds a pair; in its own process, at a
+lower priority (``nice``), it cannot hold the host's GIL or its core when the loop wakes up.
+
+Both shared blocks use a sequence lock (odd while written) so a reader never takes half a write.
+The child exits when told to, and by itself when its parent dies.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+from multiprocessing import shared_memory
+from typing import Any
+
+import numpy as np
+
+from hardware.errors import HardwareError
+from sim2real.deploy.frames import FramePair
+
+# frame header (float64): per slot [lock, capture_s, seq]; then [newest slot, pairs published]
+_SLOT_FIELDS = 3
+_NEWEST, _PUBLISHED = 6, 7
+_HEADER = 8
+# state header (float64): [lock, t_s, command]; command 1: stop, 2: frozen (a dead camera)
+_STATE_HEADER = 3
+_STOP, _FROZEN = 1.0, 2.0
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    xml: str  # the scene, markers included (textures are installed in the child)
+    cameras: tuple[str, str] = ("cam_left", "cam_right")
+    width_px: int = 640
+    height_px: int = 480
+    fps: float = 30.0
+    nice: int = 10
+    timeout_s: float = 1.0
+
+
+class _Shared:
+    """The two shared blocks, as numpy views."""
+
+    def __init__(
+        self,
+        state_shm: shared_memory.SharedMemory,
+        frames_shm: shared_memory.SharedMemory,
+        n_state: int,
+        h: int,
+        w: int,
+    ) -> None:
+        self.state_shm, self.frames_shm = state_shm, frames_shm
+        self.state: np.ndarray = np.ndarray((_STATE_HEADER + n_state,), np.float64, state_shm.buf)
+        self.header: np.ndarray = np.ndarray((_HEADER,), np.float64, frames_shm.buf)
+        self.images: np.ndarray = np.ndarray(
+            (2, 2, h, w, 3), np.uint8, frames_shm.buf, offset=8 * _HEADER
+        )
+
+    @classmethod
+    def attach(cls, names: tuple[str, str], n_state: int, h: int, w: int) -> _Shared:
+        """The child's view of the parent's blocks."""
+        from multiprocessing import resource_tracker
+
+        blocks = [shared_memory.SharedMemory(name=n) for n in names]
+        for shm in blocks:  # the parent owns the blocks: this process must not unlink them
+            resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+        return cls(blocks[0], blocks[1], n_state, h, w)
+
+    def release(self) -> None:
+        # numpy views must go before the buffers close
+        del self.state, self.header, self.images
+        self.state_shm.close()
+        self.frames_shm.close()
+
+
+def _render_main(cfg: RenderConfig, names: tuple[str, str], sizes: tuple[int, int, int]) -> None:
+    """The child: render the published state at ``cfg.fps`` until stopped or orphaned."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+    parent = os.getppid()
+    with contextlib.suppress(OSError):
+        os.nice(cfg.nice)
+    import mujoco
+
+    from sim2real.deploy.marker_textures import install_marker_textures
+    from sim2real.rendering import FastRenderer
+
+    nq, nmocap, n_state = sizes
+    model = mujoco.MjModel.from_xml_string(cfg.xml)
+    install_marker_textures(model)
+    data = mujoco.MjData(model)
+    shared = _Shared.attach(names, n_state, cfg.height_px, cfg.width_px)
+    renderer = FastRenderer(model, cfg.width_px, cfg.height_px)
+    period = 1.0 / cfg.fps
+    next_t = time.monotonic()
+    try:
+        while shared.state[2] != _STOP and os.getppid() == parent:
+            snap = _read_locked(shared.state, _STATE_HEADER)
+            if snap is not None and snap[1] >= 0.0 and snap[2] != _FROZEN:
+                t_s = float(snap[1])
+                body = snap[_STATE_HEADER:]
+                data.qpos[:] = body[:nq]
+                data.mocap_pos[:] = body[nq : nq + 3 * nmocap].reshape(nmocap, 3)
+                data.mocap_quat[:] = body[nq + 3 * nmocap :].reshape(nmocap, 4)
+                mujoco.mj_kinematics(model, data)
+                mujoco.mj_comPos(model, data)
+                mujoco.mj_camlight(model, data)
+                left = renderer.render(data, cfg.cameras[0])[:, :, ::-1]
+                right = renderer.render(data, cfg.cameras[1])[:, :, ::-1]
+                _publish(shared, left, right, t_s)
+            next_t += period
+            sleep = next_t - time.monotonic()
+            if sleep > 0:
+                time.sleep(sleep)
+            else:
+                next_t = time.monotonic()  # a slow render drops frames, as a busy camera does
+    finally:
+        renderer.close()
+        shared.release()
+
+
+def _read_locked(block: np.ndarray, _n_header: int) -> np.ndarray | None:
+    """A consistent copy of a seqlock-guarded block, or None if it stays busy."""
+    for _ in range(100):
+        s1 = block[0]
+        if s1 % 2 == 1:
+            continue
+        copy = block.copy()
+        if block[0] == s1:
+            return copy
+    return None
+
+
+def _publish(shared: _Shared, left: np.ndarray, right: np.ndarray, capture_s: float) -> None:
+    h = shared.header
+    slot = 1 - int(h[_NEWEST]) if h[_PUBLISHED] > 0 else 0
+    base = slot * _SLOT_FIELDS
+    h[base] += 1  # odd: writing
+    shared.images[slot, 0] = left
+    shared.images[slot, 1] = right
+    h[base + 1] = capture_s
+    h[base + 2] = h[_PUBLISHED] + 1
+    h[base] += 1  # even: done
+    h[_NEWEST] = slot
+    h[_PUBLISHED] += 1
+
+
+class RenderedStereoCameras:
+    """The host side: publish scene states, read the newest rendered pair (a ``FrameSource``)."""
+
+    def __init__(self, cfg: RenderConfig, nq: int, nmocap: int) -> None:
+        self.cfg = cfg
+        self.timeout_s = cfg.timeout_s
+        self._nq, self._nmocap = nq, nmocap
+        self._n_state = nq + 7 * nmocap
+        h, w = cfg.height_px, cfg.width_px
+        self._state_shm = shared_memory.SharedMemory(
+            create=True, size=8 * (_STATE_HEADER + self._n_state)
+        )
+        self._frames_shm = shared_memory.SharedMemory(
+            create=True, size=8 * _HEADER + 2 * 2 * h * w * 3
+        )
+        self._shared = _Shared(self._state_shm, self._frames_shm, self._n_state, h, w)
+        self._shared.state[:] = 0.0
+        self._shared.state[1] = -1.0  # no state yet
+        self._shared.header[:] = 0.0
+        self._proc: Any = None
+        self._last: FramePair | None = None
+        self.pairs_read = 0
+
+    def start(self) -> None:
+        """Start the render process: ``python -m sim2real.deploy.render_process`` (not
+        multiprocessing: a spawned child would re-import the user's ``__main__`` script)."""
+        job = {
+            "cfg": asdict(self.cfg),
+            "names": [self._state_shm.name, self._frames_shm.name],
+            "sizes": [self._nq, self._nmocap, self._n_state],
+        }
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "sim2real.deploy.render_process"],
+            stdin=subprocess.PIPE,
+            close_fds=True,
+        )
+        assert self._proc.stdin is not None
+        self._proc.stdin.write(json.dumps(job).encode())
+        self._proc.stdin.close()
+
+    def publish(
+        self, t_s: float, qpos: np.ndarray, mocap_pos: np.ndarray, mocap_quat: np.ndarray
+    ) -> None:
+        """Called by the physics thread after each step (cheap: a few hundred bytes)."""
+        if self._state_shm is None:
+            return  # closed
+        st = self._shared.state
+        nq, nm = self._nq, self._nmocap
+        st[0] += 1
+        st[1] = t_s
+        o = _STATE_HEADER
+        st[o : o + nq] = qpos
+        st[o + nq : o + nq + 3 * nm] = np.ravel(mocap_pos)
+        st[o + nq + 3 * nm :] = np.ravel(mocap_quat)
+        st[0] += 1
+
+    def latest(self) -> FramePair | None:
+        if self._proc is not None and self._proc.poll() is not None:
+            raise HardwareError(f"the virtual camera process died (exit {self._proc.returncode})")
+        h = self._shared.header
+        if h[_PUBLISHED] == 0:
+            return None
+        for _ in range(20):
+            slot = int(h[_NEWEST])
+            base = slot * _SLOT_FIELDS
+            s1 = h[base]
+            seq = int(h[base + 2])
+            if self._last is not None and seq == self._last.seq:
+                return self._last
+            if s1 % 2 == 1:
+                continue
+            left = self._shared.images[slot, 0].copy()
+            right = self._shared.images[slot, 1].copy()
+            capture = float(h[base + 1])
+            if h[base] == s1:
+                self._last = FramePair(left, right, capture, seq)
+                self.pairs_read += 1
+                return self._last
+        return self._last
+
+    def freeze(self) -> None:
+        """Fault injection: the cameras stop delivering (the process lives on, as a hung USB
+        camera does); the loop's freshness check must notice."""
+        self._shared.state[2] = _FROZEN
+
+    @property
+    def pairs_published(self) -> int:
+        return int(self._shared.header[_PUBLISHED])
+
+    def close(self) -> None:
+        if self._proc is not None:
+            self._shared.state[2] = _STOP
+            try:
+                self._proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(timeout=2.0)
+            self._proc = None
+        if self._state_shm is not None:
+            self._shared.release()
+            for shm in (self._state_shm, self._frames_shm):
+                with contextlib.suppress(FileNotFoundError):
+                    shm.unlink()
+            self._state_shm = None  # type: ignore[assignment]
+
+
+def main() -> None:
+    """The render process's entry point: the job arrives as JSON on stdin."""
+    job = json.loads(sys.stdin.read())
+    names = (str(job["names"][0]), str(job["names"][1]))
+    nq, nmocap, n_state = (int(v) for v in job["sizes"])
+    cfg = job["cfg"]
+    cfg["cameras"] = tuple(cfg["cameras"])
+    _render_main(RenderConfig(**cfg), names, (nq, nmocap, n_state))
+
+
+if __name__ == "__main__":
+    main()
