@@ -14,7 +14,7 @@ RENDER_MODES: tuple[str, ...] = ("none", "human")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", help="run dir, exported .onnx or .npz policy")
+    parser.add_argument("run", help="run dir, exported .onnx or .npz policy, or a shipped name")
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes (200)")
     parser.add_argument("--dr", help="DR preset to evaluate under (default: the training one)")
     parser.add_argument("--seed-offset", type=int, default=0, help="first held-out seed offset")
@@ -127,6 +127,8 @@ def _sweep(args: argparse.Namespace, target: Any) -> int:
 
     grid = parse_axes(args.sweep_axis)
     run = Path(args.run)
+    if not run.exists():  # a shipped policy's name: results beside the user's runs
+        run = Path("runs") / f"{args.run}.shipped"
     out = Path(args.out) if args.out else (run / "eval" if run.is_dir() else run.with_suffix(""))
     base = target.dr(args.dr)
     rows = run_sweep(

@@ -65,13 +65,19 @@ def load_run_dir(path: str | Path) -> Policy:
 
 
 def load_policy(path: str | Path) -> Policy:
-    """A run directory, or an exported file of any registered format."""
+    """A run directory, an exported file of any registered format, or a shipped policy's
+    name (``sim2real policies``)."""
+    from sim2real.policies import shipped
+
     p = Path(path)
+    if not p.exists() and str(path) in (ships := shipped()):
+        p = ships[str(path)].path
     if p.is_dir():
         return load_run_dir(p)
     if not p.exists():
         raise RunDirError(
-            f"policy {str(p)!r} does not exist (expected a run dir, {', '.join(sorted(BY_SUFFIX))})"
+            f"no run directory, policy file ({', '.join(sorted(BY_SUFFIX))}) or shipped policy "
+            f"named {str(p)!r}; shipped policies: {sorted(shipped()) or 'none'}"
         )
     fmt = BY_SUFFIX.get(p.suffix.lower())
     if fmt is None:
