@@ -1,0 +1,59 @@
+"""Shipped policies: listed, loadable by name wherever a run directory is, fit the shipped arm."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hardware.spec import load_spec
+from sim2real.cli.main import main
+from sim2real.deploy.policy_io import policy_io
+from sim2real.export.policy import load_policy
+from sim2real.policies import resolve_policy, shipped
+
+
+def test_every_shipped_policy_fits_the_shipped_arm_and_its_task_contract() -> None:
+    ships = shipped()
+    assert {"reach-ppo", "reach-ddpg"} <= set(ships)
+    spec = load_spec()
+    for name, ship in ships.items():
+        policy = load_policy(name)  # by name
+        policy.meta.check_spec(spec.fingerprint())
+        io = policy_io(spec, policy.meta)  # layout checked field by field
+        assert io.task == ship.task, name
+        obs = np.zeros(io.builder.size, dtype=np.float32)
+        action = policy(obs)
+        assert action.shape == (io.decoder.n_actions,) and np.all(np.abs(action) <= 1.0)
+        assert ship.path.stat().st_size < 5_000_000  # a few MB at most
+        assert 0.0 <= ship.figures["env_success_dr_default"] <= 1.0
+
+
+def test_policies_cli_lists_and_shows_cards(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["policies", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert listed["reach-ppo"]["task"] == "reach"
+    assert main(["policies", "reach-ddpg", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["algo"] == "ddpg"
+
+
+def test_a_shipped_policy_deploys_by_name(capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["deploy", "reach-ppo", "--backend", "sim", "--episodes", "1", "--json"]
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert summary["task"] == "reach" and summary["episodes"] == 1
+
+
+def test_an_unknown_policy_name_is_one_line_naming_it_and_the_shipped_ones() -> None:
+    res = subprocess.run(
+        [sys.executable, "-m", "sim2real", "deploy", "pick-sac", "--backend", "sim"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 2
+    assert res.stderr.count("\n") == 1, res.stderr
+    assert "'pick-sac'" in res.stderr and "reach-ppo" in res.stderr
+    with pytest.raises(Exception, match="shipped policies"):
+        resolve_policy("pick-sac")
