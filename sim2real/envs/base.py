@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from hardware.spec import ArmSpec, load_spec
+from sim2real.actuation import ServoActuation
 from sim2real.envs.contract import DeployContract
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.model import ArmTwin, RigSpec, build_model
@@ -30,7 +31,6 @@ from sim2real.observation import (
     command_readings,
 )
 from sim2real.randomization import DomainRandomizer, ModelIds, load_preset
-from sim2real.randomization.actuation import ServoActuation
 from sim2real.randomization.config import DRConfig
 from sim2real.randomization.sensing import SensorModel
 from sim2real.rendering import FastRenderer

@@ -16,14 +16,11 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 
-from sim2real.randomization.base import ModelIds, NoiseBuffer
+from sim2real.randomization.base import ModelIds, NoiseBuffer, Params
 from sim2real.randomization.config import Range
-
-Params = dict[str, Any]
 
 
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:
