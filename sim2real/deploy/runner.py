@@ -153,7 +153,9 @@ def _emulator(plant: Any, opts: DeployOptions, config: Any) -> Any:
         raise UnknownNameError("firmware", opts.firmware, FIRMWARES)
     if opts.protocol != "s2r":
         raise ConfigError(f"--firmware {opts.firmware} speaks s2r, not {opts.protocol!r}")
-    return FIRMWARES[opts.firmware](plant.spec, opts.protocol, plant.emulator_config(config))
+    return FIRMWARES[opts.firmware](
+        plant.spec, opts.protocol, plant.emulator_config(config), mounting=plant.mounting("s2r")
+    )
 
 
 def _stereo_perception(
