@@ -76,8 +76,9 @@ def load_policy(path: str | Path) -> Policy:
         return load_run_dir(p)
     if not p.exists():
         raise RunDirError(
-            f"no run directory, policy file ({', '.join(sorted(BY_SUFFIX))}) or shipped policy "
-            f"named {str(p)!r}; shipped policies: {sorted(shipped()) or 'none'}"
+            f"policy {str(p)!r} does not exist: no run directory, policy file "
+            f"({', '.join(sorted(BY_SUFFIX))}) or shipped policy of that name; shipped policies: "
+            f"{sorted(shipped()) or 'none'}"
         )
     fmt = BY_SUFFIX.get(p.suffix.lower())
     if fmt is None:

@@ -64,6 +64,6 @@ def resolve_policy(ref: str | Path) -> Path:
     if text in ships:
         return ships[text].path
     raise RunDirError(
-        f"no run directory, policy file or shipped policy named {text!r}; "
-        f"shipped policies: {sorted(ships) or 'none'}"
+        f"policy {text!r} does not exist: no run directory, policy file or shipped policy of "
+        f"that name; shipped policies: {sorted(ships) or 'none'}"
     )

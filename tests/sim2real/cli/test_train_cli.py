@@ -95,7 +95,7 @@ def test_a_signal_leaves_a_checkpoint_that_resume_continues(
     [
         (
             ["--env", "reach", "--algo", "trpo"],
-            "unknown algo 'trpo'; valid: a2c, ddpg, dqn, ppo, sac, td3",
+            "unknown algo 'trpo'; valid: a2c, ddpg, distill, dqn, ppo, sac, td3",
         ),
         (["--env", "Arm3Fly", "--algo", "ppo"], "unknown env 'Arm3Fly'; valid:"),
         (["--env", "reach", "--algo", "ppo", "--her"], "--her needs an off-policy algo"),
@@ -177,5 +177,5 @@ def test_console_entry_point_reports_one_line() -> None:
     )
     assert out.returncode == 2
     assert out.stderr == (
-        "sim2real train: error: unknown algo 'nope'; valid: a2c, ddpg, dqn, ppo, sac, td3\n"
+        "sim2real train: error: unknown algo 'nope'; valid: a2c, ddpg, distill, dqn, ppo, sac, td3\n"
     )

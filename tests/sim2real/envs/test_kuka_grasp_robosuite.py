@@ -46,7 +46,9 @@ def test_same_spaces_and_camera_as_the_fast_twin(env: KukaGraspEnv) -> None:
         fast.close()
     obs, info = env.reset(seed=0)
     assert obs.shape == (48, 48, 3) and obs.dtype == np.uint8 and obs.std() > 10
-    assert set(info["dr"]) == {"dynamics", "actuation", "sensing", "visual", "object"}
+    assert set(info["dr"]) == {
+        "dynamics", "actuation", "sensing", "visual", "object", "kinematics"
+    }  # fmt: skip
 
 
 def test_arm_starts_at_the_target_and_follows_the_height_hack(env: KukaGraspEnv) -> None:
