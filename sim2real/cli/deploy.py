@@ -55,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dry-run", action="store_true", help="serial: read and log, send nothing")
     parser.add_argument("--log", type=Path, default=None, help="trajectory log (.npz)")
     parser.add_argument("--video", type=Path, default=None, help="mp4 of the left camera")
+    parser.add_argument(
+        "--record-dataset", type=Path, default=None, metavar="DIR",
+        help="write the episodes as a LeRobot dataset (v3.0; both cameras as videos)",
+    )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("-v", "--verbose", action="store_true")
 
@@ -104,7 +108,12 @@ def run(args: argparse.Namespace) -> int:
         dry_run=args.dry_run,
         start_timeout_s=args.start_timeout,
     )
-    result = deploy(args.policy, spec, opts, config, log_path=args.log, video_path=args.video)
+    if args.record_dataset is not None and args.record_dataset.exists():
+        raise ConfigError(f"--record-dataset {str(args.record_dataset)!r} exists; choose a new one")
+    result = deploy(
+        args.policy, spec, opts, config, log_path=args.log, video_path=args.video,
+        dataset_path=args.record_dataset,
+    )  # fmt: skip
     summary = {"backend": args.backend, **result.summary()}
     if args.json:
         print(json.dumps(summary))

@@ -196,6 +196,7 @@ class DeployLoop:
         log_path: Path | None = None,
         on_frame: Callable[[], None] | None = None,
         obs_keys: tuple[str, ...] | None = None,
+        on_episode: Callable[[int, bool, dict[str, list[Any]]], None] | None = None,
     ) -> None:
         self.arm, self.perception, self.world = arm, perception, world
         self.policy, self.io = policy, io
@@ -205,6 +206,7 @@ class DeployLoop:
         self.log_path = log_path
         self.log = LoopLog()
         self.on_frame = on_frame
+        self.on_episode = on_episode  # (episode, success, the log's rows): dataset recording
         self.obs_keys = obs_keys  # dict-observation policies (HER): their key order
         self._n_obs_joints = self.builder.fields[0].size
         self._has_goal_delta = "target_goal_delta" in {f.name for f in self.builder.fields}
@@ -254,6 +256,7 @@ class DeployLoop:
         try:
             for episode in range(cfg.episodes):
                 contract = self.io.new_contract(spec, cfg.rate_hz)
+                self.world.clear()  # sim and mock: last episode's objects off the table
                 if not cfg.dry_run:  # up and open: a held cube is let go, a new one is clear
                     self.arm.home()
                 self.world.new_episode(contract.placement(rng))
@@ -329,6 +332,8 @@ class DeployLoop:
                 blind += invalid
                 out = contract.outcome()
                 episodes.append(EpisodeRecord(out.success, out.distance_m, out.figures, reason))
+                if self.on_episode is not None:
+                    self.on_episode(episode, out.success, self.log.rows)
                 log.info(
                     "episode %d: success=%s distance %.4f m %s",
                     episode,

@@ -218,6 +218,7 @@ def deploy(
     config: LoopConfig,
     log_path: Path | None = None,
     video_path: Path | None = None,
+    dataset_path: Path | None = None,
 ) -> DeployResult:
     """Load the policy (a run dir, an exported file or a shipped name), check it fits this arm,
     build the backend around the task's contract, run the loop, clean up."""
@@ -234,8 +235,9 @@ def deploy(
             f"rate (--rate {meta.control_hz:g}), not {config.rate_hz:g} Hz"
         )
     return run_policy(
-        lambda obs: policy(obs), io, spec, opts, config, log_path, video_path, meta.obs_keys
-    )
+        lambda obs: policy(obs), io, spec, opts, config, log_path, video_path, meta.obs_keys,
+        dataset_path,
+    )  # fmt: skip
 
 
 def run_policy(
@@ -247,21 +249,30 @@ def run_policy(
     log_path: Path | None = None,
     video_path: Path | None = None,
     obs_keys: tuple[str, ...] | None = None,
+    dataset_path: Path | None = None,
 ) -> DeployResult:
     """Any callable policy on a backend (a scripted one in tests, a learner's actor)."""
     with contextlib.ExitStack() as stack:
         arm, perception, world = BACKENDS[opts.backend](spec, io, opts, stack)
+        cameras = isinstance(perception, StereoPerception)
         writer = None
-        if video_path is not None and isinstance(perception, StereoPerception):
+        if video_path is not None and cameras:
             import imageio.v2 as imageio
 
             writer = imageio.get_writer(str(video_path), fps=config.rate_hz, macro_block_size=8)
             stack.callback(writer.close)
+        recorder = None
+        if dataset_path is not None:
+            from sim2real.deploy.recording import DeployRecorder
+
+            recorder = DeployRecorder(dataset_path, spec, io, config.rate_hz, cameras)
 
         def on_frame() -> None:
             frames = perception.last_frames if isinstance(perception, StereoPerception) else None
             if writer is not None and frames is not None:
                 writer.append_data(frames[0][:, :, ::-1])
+            if recorder is not None:
+                recorder.on_period(frames)
 
         loop = DeployLoop(
             arm,
@@ -271,9 +282,17 @@ def run_policy(
             io,
             config,
             log_path=log_path,
-            on_frame=on_frame if writer is not None else None,
+            on_frame=on_frame if writer is not None or recorder is not None else None,
             obs_keys=obs_keys,
+            on_episode=None if recorder is None else recorder.on_episode,
         )
-        result = loop.run()
+        try:
+            result = loop.run()
+        except BaseException:
+            if recorder is not None:  # nothing half-written: the episodes so far are dropped
+                recorder.abort()
+            raise
+        if recorder is not None:
+            recorder.close()  # the episodes recorded, even after a Ctrl-C
         result.arm = arm  # type: ignore[attr-defined]  # tests inspect the mock through it
         return result

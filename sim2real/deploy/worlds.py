@@ -36,6 +36,10 @@ class World(Protocol):
         """Put the task's objects where the contract says (a real arm: a person does)."""
         ...
 
+    def clear(self) -> None:
+        """Between episodes: objects out of the arm's way (a real arm: nothing to do)."""
+        ...
+
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
         """The truth for judging success, or None where there is none (a real arm)."""
         ...
@@ -90,6 +94,16 @@ class SceneObjects:
         if "target" not in placement:  # park the unused target plate out of view
             data.mocap_pos[self.target_mocap] = (0.0, 0.0, -1.0)
 
+    def clear(self, data: mujoco.MjData) -> None:
+        """Take the objects off the table (between episodes the arm homes with nothing in its
+        way or in its fingers; the next placement puts them back)."""
+        data.mocap_pos[self.target_mocap] = (0.0, 0.0, -1.0)
+        if self.cube_qadr >= 0:
+            a, v = self.cube_qadr, self.cube_dofadr
+            data.qpos[a : a + 3] = (-0.4, 0.4, 0.05)
+            data.qpos[a + 3 : a + 7] = (1.0, 0.0, 0.0, 0.0)
+            data.qvel[v : v + 6] = 0.0
+
     def truth(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
         out = {"target": data.mocap_pos[self.target_mocap].copy()}
         if self.cube_body >= 0:
@@ -128,6 +142,10 @@ class SimWorld:
 
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
         self.objects.place(self.arm.data, placement)
+        mujoco.mj_forward(self.arm.model, self.arm.data)
+
+    def clear(self) -> None:
+        self.objects.clear(self.arm.data)
         mujoco.mj_forward(self.arm.model, self.arm.data)
 
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
@@ -325,6 +343,12 @@ class MockWorld:
             mujoco.mj_forward(self.model, self.data)
         self._publish(time.monotonic())
 
+    def clear(self) -> None:
+        with self.lock:
+            self.objects.clear(self.data)
+            mujoco.mj_forward(self.model, self.data)
+        self._publish(time.monotonic())
+
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
         if self.error is not None:
             raise RuntimeError(f"mock physics stopped: {self.error}") from self.error
@@ -347,6 +371,9 @@ class CameraWorld:
 
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
         """Nothing to do: the loop waits until the contract's objects are seen and still."""
+
+    def clear(self) -> None:
+        """A person takes the cube (home opens the gripper)."""
 
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
         return None

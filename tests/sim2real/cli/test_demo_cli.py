@@ -30,7 +30,7 @@ def test_demo_runs_every_stage_and_replaces_only_its_own_folder(
     ]
     assert main(args) == 0
     res = json.loads(capsys.readouterr().out)
-    assert [s.name for s in demo.STAGES] == ["train", "evaluate", "export", "deploy"]
+    assert [s.name for s in demo.STAGES] == ["train", "evaluate", "export", "deploy", "pick"]
     assert list(res["stages"]) == ["train", "evaluate", "export"]
     assert res["stages"]["train"]["steps"] >= 128
     ev = res["stages"]["evaluate"]

@@ -123,7 +123,7 @@ def test_sweep_writes_csv_and_heatmap(
         ),
         (
             ["demo", "--stages", "train,fly"],
-            "unknown demo stage 'fly'; valid: deploy, evaluate, export, train",
+            "unknown demo stage 'fly'; valid: deploy, evaluate, export, pick, train",
         ),
     ],
 )
