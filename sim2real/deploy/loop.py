@@ -256,9 +256,9 @@ class DeployLoop:
         try:
             for episode in range(cfg.episodes):
                 contract = self.io.new_contract(spec, cfg.rate_hz)
+                if not cfg.dry_run:  # up, then open: a held cube drops, a new one is clear
+                    self._home()
                 self.world.clear()  # sim and mock: last episode's objects off the table
-                if not cfg.dry_run:  # up and open: a held cube is let go, a new one is clear
-                    self.arm.home()
                 self.world.new_episode(contract.placement(rng))
                 self.perception.reset()
                 percept = self._wait_until_ready(contract, episode)
@@ -474,6 +474,16 @@ class DeployLoop:
         """Between periods (no policy running) keep every watchdog fed: the arm does not move."""
         if self.arm.is_enabled and not self.config.dry_run:
             self.arm.hold()
+
+    def _home(self) -> None:
+        """Home in two moves: the joints first, the gripper as it is (a cube pressed against the
+        table would wedge the fingers), then the gripper opens up high and a held cube drops."""
+        n = self.decoder.spec.n_joints
+        if self.arm.is_enabled and self.decoder.spec.n_actuators > n:
+            target = self.decoder.spec.actuator_home_rad.copy()
+            target[n:] = self.arm.read_state().positions_rad[n:]
+            self.arm.move_to(target)
+        self.arm.home()
 
     def _count_watchdog(self, exc: BaseException) -> None:
         if "watchdog" in str(exc):
