@@ -293,10 +293,14 @@ class DeployLoop:
                         action = np.asarray(self.policy(obs), dtype=float)
                     except MissingEstimateError:
                         # an estimate went missing (a tracker lost its object): hold still and
-                        # keep the watchdogs fed; a camera that stops delivering raises instead
+                        # keep the watchdogs fed (the gripper action is absolute: keep it, or a
+                        # held cube drops); a camera that stops delivering raises instead
                         invalid += 1
                         obs = np.full(self.builder.size, np.nan, dtype=np.float32)
                         action = np.zeros(self.decoder.n_actions)
+                        action[self.decoder.spec.n_joints :] = prev_action[
+                            self.decoder.spec.n_joints :
+                        ]
                     t3 = time.perf_counter()
                     targets = self.decoder.decode(action, targets)
                     if cfg.dry_run:  # read and log, send nothing: the filter still judges it
@@ -332,6 +336,7 @@ class DeployLoop:
                 blind += invalid
                 out = contract.outcome()
                 episodes.append(EpisodeRecord(out.success, out.distance_m, out.figures, reason))
+                self._hold()  # before any slow bookkeeping (video encoding): the watchdog waits
                 if self.on_episode is not None:
                     self.on_episode(episode, out.success, self.log.rows)
                 log.info(
@@ -344,12 +349,18 @@ class DeployLoop:
                 self._hold()
         except KeyboardInterrupt:
             stopped = "interrupted (Ctrl-C or SIGTERM)"
-            self._safe_stop()
+            try:
+                self._safe_stop()
+            except KeyboardInterrupt:  # a second Ctrl-C: torque off, keep the log
+                self._save_log()
+                raise
         except Exception as exc:  # any error: hold, park, torque off; keep the log
-            stopped = f"{type(exc).__name__}: {exc}"
+            stopped = f"{type(exc).__name__}: " + (str(exc).splitlines() or [""])[0]
             self._count_watchdog(exc)
-            self._safe_stop()
-            self._save_log()
+            try:
+                self._safe_stop()
+            finally:
+                self._save_log()  # even if a second Ctrl-C cuts the safe stop short
             raise
         else:
             self._park()

@@ -401,7 +401,8 @@ class StereoPerception:
 
     def perceive(self, state: ArmState, command_s: float) -> Percept:
         if self._error is not None:
-            raise HardwareError(f"perception stopped: {self._error}") from self._error
+            first = (str(self._error).splitlines() or [type(self._error).__name__])[0]
+            raise HardwareError(f"perception stopped: {first}") from self._error
         if self._thread is None:
             raise ConfigError("StereoPerception.perceive() before start()")
         q_now = np.asarray(state.positions_rad[: self.spec.n_joints], dtype=float)

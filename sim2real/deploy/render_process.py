@@ -189,6 +189,7 @@ class RenderedStereoCameras:
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "sim2real.deploy.render_process"],
             stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,  # nothing of the child's may land in a --json stdout
             close_fds=True,
         )
         assert self._proc.stdin is not None

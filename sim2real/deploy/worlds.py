@@ -331,10 +331,12 @@ class MockWorld:
             self._blocked = False
 
     def _publish(self, t_s: float) -> None:
+        """One writer at a time, capture times never going backwards (the physics thread and
+        the loop's thread both publish; the trackers refuse time running backwards)."""
         d = self.data
         with self.lock:
-            qpos, mpos, mquat = d.qpos.copy(), d.mocap_pos.copy(), d.mocap_quat.copy()
-        self.cameras.publish(t_s, qpos, mpos, mquat)
+            self._published_t = max(t_s, getattr(self, "_published_t", -np.inf))
+            self.cameras.publish(self._published_t, d.qpos, d.mocap_pos, d.mocap_quat)
 
     # ---- the world interface ----------------------------------------------------------------
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
@@ -351,7 +353,8 @@ class MockWorld:
 
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
         if self.error is not None:
-            raise RuntimeError(f"mock physics stopped: {self.error}") from self.error
+            first = (str(self.error).splitlines() or [type(self.error).__name__])[0]
+            raise RuntimeError(f"mock physics stopped: {first}") from self.error
         with self.lock:
             d = self.data
             return View(
