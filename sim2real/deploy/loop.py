@@ -259,9 +259,7 @@ class DeployLoop:
                 if not cfg.dry_run:  # up, then open: a held cube drops, a new one is clear
                     self._home()
                 self.world.clear()  # sim and mock: last episode's objects off the table
-                self.world.new_episode(contract.placement(rng))
-                self.perception.reset()
-                percept = self._wait_until_ready(contract, episode)
+                percept = self._start(contract, episode, rng)
                 contract.begin(percept)
                 targets = self.arm.read_state().positions_rad.copy()
                 prev_action = np.zeros(self.decoder.n_actions)
@@ -387,6 +385,27 @@ class DeployLoop:
         )
 
     # ---- episode start ----------------------------------------------------------------------
+    PLACEMENT_TRIES = 3  # a world that places objects may put one where the cameras miss it
+
+    def _start(self, contract: DeployContract, episode: int, rng: np.random.Generator) -> Percept:
+        """Place the episode's objects (sim, mock) and wait until they are seen and still. A
+        world that places them tries a new placement when the cameras cannot see one (behind
+        the arm's base); on a real arm the first timeout stops the run."""
+        tries = self.PLACEMENT_TRIES if self.world.places_objects else 1
+        for attempt in range(tries):
+            self.world.new_episode(contract.placement(rng))
+            self.perception.reset()
+            try:
+                return self._wait_until_ready(contract, episode)
+            except DeployStopError as exc:
+                if attempt + 1 == tries:
+                    raise
+                log.warning("%s: placing the objects anew", exc)
+                self.world.clear()
+                if not self.config.dry_run:
+                    self.arm.home()
+        raise AssertionError("unreachable")  # pragma: no cover
+
     def _wait_until_ready(self, contract: DeployContract, episode: int) -> Percept:
         """Hold the arm (feeding the watchdogs) until the contract's objects are seen and
         still. Half-way through the timeout the arm parks, low and out of the cameras' way (at
@@ -494,7 +513,15 @@ class DeployLoop:
             target = self.decoder.spec.actuator_home_rad.copy()
             target[n:] = self.arm.read_state().positions_rad[n:]
             self.arm.move_to(target)
-        self.arm.home()
+        try:
+            self.arm.home()
+        except HardwareError as exc:
+            if not self.world.places_objects:
+                raise  # a real arm: a person must look at what blocks it
+            # simulated contacts can wedge a turned cube between the fingers: take it away
+            log.warning("home failed (%s): clearing the table and homing again", exc)
+            self.world.clear()
+            self.arm.home()
 
     def _count_watchdog(self, exc: BaseException) -> None:
         if "watchdog" in str(exc):

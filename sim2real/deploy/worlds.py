@@ -32,6 +32,8 @@ log = logging.getLogger(__name__)
 
 
 class World(Protocol):
+    places_objects: bool  # sim and mock place the objects; on a real arm a person does
+
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
         """Put the task's objects where the contract says (a real arm: a person does)."""
         ...
@@ -133,6 +135,8 @@ class SceneObjects:
 class SimWorld:
     """Truth from the ``SimArm``'s MuJoCo state; objects placed in its scene."""
 
+    places_objects = True
+
     def __init__(self, arm: object, rig: RigSpec) -> None:
         from sim2real.deploy.sim_arm import SimArm
 
@@ -170,6 +174,7 @@ class MockWorld:
     """The mock arm's world: emulator-driven MuJoCo physics in a real-time thread, rendered by
     free-running virtual cameras in their own process."""
 
+    places_objects = True
     STEP_CATCH_UP_MAX = 20  # physics steps per wake-up at most (a stalled thread jumps ahead)
     KINEMATIC_ARMATURE = 1e4  # kg·m²: the emulator's servos, not the contacts, move the arm
 
@@ -371,6 +376,8 @@ class MockWorld:
 
 class CameraWorld:
     """A real arm: a person places the objects; success is judged from the camera estimates."""
+
+    places_objects = False
 
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
         """Nothing to do: the loop waits until the contract's objects are seen and still."""
