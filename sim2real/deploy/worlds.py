@@ -149,7 +149,15 @@ class SimWorld:
         mujoco.mj_forward(self.arm.model, self.arm.data)
 
     def clear(self) -> None:
-        self.objects.clear(self.arm.data)
+        """Objects off the table, and the fingers reset to where their servo drives them: a
+        simulated cube squeezed out of the fingers can leave them jammed."""
+        d, twin = self.arm.data, self.arm.twin
+        self.objects.clear(d)
+        if twin.has_gripper:
+            d.qpos[twin.finger_qadr] = d.ctrl[twin.n_joints]
+            d.qvel[
+                self.arm.model.jnt_dofadr[[self.arm.model.joint(n).id for n in names.FINGER_JOINTS]]
+            ] = 0.0
         mujoco.mj_forward(self.arm.model, self.arm.data)
 
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
