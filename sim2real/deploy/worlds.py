@@ -233,7 +233,7 @@ class MockWorld:
         self._make_arm_kinematic()
         q = self._positions()
         self.twin.set_pose(self.data, q, q[self._grip_index] if self._grip_index >= 0 else None)
-        self._pose(q, np.zeros(len(self._arm_dofs)), self._grip_goal(q))
+        self._pose(q, self._grip_goal(q))
         self.data.qvel[:] = 0.0
         mujoco.mj_forward(self.model, self.data)
 
@@ -269,10 +269,9 @@ class MockWorld:
             m.actuator_gainprm[i, 0] = 0.0
             m.actuator_biasprm[i, :3] = 0.0
 
-    def _pose(self, q_rad: np.ndarray, qvel_arm: np.ndarray, grip_rad: float | None) -> None:
+    def _pose(self, q_rad: np.ndarray, grip_rad: float | None) -> None:
         """Velocities that bring the arm onto ``q_rad`` in one step; the finger actuator pushes
         to ``grip_rad``."""
-        del qvel_arm
         dt = float(self.model.opt.timestep)
         goal = np.append(q_rad[: self._n], self._wrist_rad(q_rad))
         now = np.append(self.twin.joint_positions(self.data), self.data.qpos[self.twin.wrist_qadr])
@@ -299,12 +298,10 @@ class MockWorld:
                 if behind > 0:
                     q = self._positions()
                     dq = q - prev
-                    joints = np.append(dq[: self._n], self._wrist_rad(dq))
-                    qvel = joints / (behind * dt)
                     grip = self._grip_goal(q)
                     with self.lock:
                         for k in range(1, behind + 1):  # servo motion spread over the steps
-                            self._pose(prev + dq * (k / behind), qvel, grip)
+                            self._pose(prev + dq * (k / behind), grip)
                             mujoco.mj_step(self.model, self.data)
                         self.steps += behind
                         self._gripper_feedback(q)
