@@ -26,12 +26,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from types import TracebackType
 
 import numpy as np
 
 from hardware.emulator.dynamics import ServoBank, ServoParams
 from hardware.emulator.firmware import AppliedCommand
+from hardware.emulator.lifecycle import PtyDevice
 from hardware.emulator.server import EmulatorConfig
 from hardware.errors import HardwareError
 from hardware.firmware import avr
@@ -44,7 +44,7 @@ from hardware.spec import ArmSpec, load_spec
 SETTLE_S = 0.05  # a pulse train stops being seen as "on" 25 ms after its last pulse, at worst 45
 
 
-class AvrEmulator:
+class AvrEmulator(PtyDevice):
     """The AVR firmware in simavr on a pty. Use as a context manager, or ``start()``/``stop()``.
 
     Only protocol ``s2r`` (it is our firmware), and of ``EmulatorConfig`` only what belongs to the
@@ -185,26 +185,6 @@ class AvrEmulator:
         if proc.stdout is not None:
             with contextlib.suppress(OSError):
                 proc.stdout.close()
-
-    def __enter__(self) -> AvrEmulator:
-        self.start()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> str:
-        return str(self.link) if self.link is not None else self.device_path
-
-    @property
-    def running(self) -> bool:
-        return self._running
 
     def now_s(self) -> float:
         """Simulated time of the chip (seconds since power-up), as far as reported."""

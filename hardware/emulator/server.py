@@ -36,7 +36,6 @@ import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -44,6 +43,7 @@ import numpy as np
 from hardware.emulator.devices import DEVICES, EmulatedDevice
 from hardware.emulator.dynamics import ServoBank, ServoParams
 from hardware.emulator.firmware import AppliedCommand
+from hardware.emulator.lifecycle import PtyDevice
 from hardware.errors import HardwareError
 from hardware.joint_calibration import ArmCalibration, nominal_calibration
 from hardware.protocols import get_protocol
@@ -137,7 +137,7 @@ def pty_baud(fd: int) -> int | None:
         return None
 
 
-class Emulator:
+class Emulator(PtyDevice):
     """An emulated arm on a pty. Use as a context manager, or ``start()`` / ``stop()``."""
 
     def __init__(
@@ -314,26 +314,6 @@ class Emulator:
                 with contextlib.suppress(OSError):
                     os.close(fd)
                 setattr(self, name, -1)
-
-    def __enter__(self) -> Emulator:
-        self.start()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> str:
-        return str(self.link) if self.link is not None else self.device_path
-
-    @property
-    def running(self) -> bool:
-        return self._running
 
     def now_s(self) -> float:
         """Emulator time: seconds since start()."""
