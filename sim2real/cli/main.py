@@ -75,6 +75,12 @@ COMMANDS: tuple[Command, ...] = (
         long=True,
     ),
     Command("sysid", "sim2real.cli.sysid", "fit the servo model to logs; write spec + DR centre"),
+    Command(
+        "adapt",
+        "sim2real.cli.adapt",
+        "adapt a policy to the arm it meets: record, fit, fine-tune in sim, evaluate",
+        long=True,
+    ),
     Command("replay", "sim2real.cli.replay", "read a recorded LeRobot dataset back"),
     Command("policies", "sim2real.cli.policies", "list the shipped, measured policies"),
 )

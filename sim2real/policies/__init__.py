@@ -3,7 +3,10 @@ spec's fingerprint), a few hundred kB each. ``sim2real policies`` lists them; ev
 takes a run directory or a policy file also takes a shipped policy's name.
 
 Each policy is ``<name>.onnx`` plus a card ``<name>.json``: what it is for, how it was trained
-and what it measured (``bench/ship_policies.py`` writes both).
+and what it measured (``bench/ship_policies.py`` writes both). A policy that may be fine-tuned
+(``sim2real adapt``) also ships its SB3 checkpoint, named in the card's ``checkpoint``:
+``<name>.zip`` (actor, critic, optimiser) and ``<name>.train.json`` (the run's config and its
+observation-normalisation statistics as numbers).
 """
 
 from __future__ import annotations
@@ -28,17 +31,27 @@ class ShippedPolicy:
     summary: str
     figures: dict[str, Any] = field(default_factory=dict)
     trained: dict[str, Any] = field(default_factory=dict)
+    checkpoint: tuple[Path, Path] | None = None  # (SB3 .zip, .train.json) when fine-tunable
 
 
 def shipped() -> dict[str, ShippedPolicy]:
     """Name → policy, for every card whose policy file is present."""
     out: dict[str, ShippedPolicy] = {}
     for card in sorted(SHIPPED_DIR.glob("*.json")):
+        if "." in card.stem:  # <name>.train.json beside a card, not a card
+            continue
         try:
             d = json.loads(card.read_text())
             path = SHIPPED_DIR / str(d["file"])
             if not path.is_file():
                 continue
+            ckpt = d.get("checkpoint")
+            checkpoint = None
+            if ckpt is not None:
+                checkpoint = (SHIPPED_DIR / str(ckpt["model"]), SHIPPED_DIR / str(ckpt["stats"]))
+                missing = [p.name for p in checkpoint if not p.is_file()]
+                if missing:
+                    raise ValueError(f"its checkpoint files {missing} are missing")
             out[card.stem] = ShippedPolicy(
                 name=card.stem,
                 path=path,
@@ -48,6 +61,7 @@ def shipped() -> dict[str, ShippedPolicy]:
                 summary=str(d.get("summary", "")),
                 figures=dict(d.get("figures", {})),
                 trained=dict(d.get("trained", {})),
+                checkpoint=checkpoint,
             )
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise RunDirError(f"shipped policy card {card.name!r} is unreadable: {exc}") from None

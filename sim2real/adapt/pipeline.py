@@ -1,0 +1,567 @@
+"""``sim2real adapt``: real -> sim -> real in one command, as stages over one output folder.
+
+Stages, in order (``STAGES``); each writes its files atomically into ``--out`` and, once they are
+all written, is added to ``status.json`` with its figures. A run that stops (Ctrl-C, SIGTERM, an
+error) keeps every finished stage; running again with the same ``--out`` continues at the first
+stage not done (the fine-tune continues from its own last checkpoint).
+
+0. ``zero_shot``: the original policy deployed on the arm, N episodes (the transfer table's
+   "before" cell);
+1. ``record``: a servo excitation (``sysid.record``) and a kinematic excitation with the wrist
+   marker in view of both cameras (``adapt.excite``), or the given ``--logs``;
+2. ``sysid``: the servo fit and the kinematic fit (joint zero offsets, link lengths, 1-sigma);
+3. ``fit``: the fitted spec, a DR preset centred on the fit and the host-side joint calibration
+   carrying the fitted offsets (``adapt.fitted`` says why the offsets live there);
+4. ``finetune``: the policy's SB3 checkpoint trained on under the fitted spec and centred preset
+   within ``--minutes`` of wall clock (``adapt.checkpoint``);
+5. ``export``: ONNX with the fitted spec's fingerprint;
+6. ``evaluate``: the adapted policy deployed on the same arm, N episodes, with the fitted spec and
+   calibration (the "after" cell).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hardware.atomic import atomic_write_bytes, atomic_write_text
+from hardware.spec import ArmSpec, load_spec
+from sim2real.errors import ConfigError, RunDirError, Sim2RealError
+
+STATUS_FORMAT = 1
+STAGES: tuple[str, ...] = (
+    "zero_shot",
+    "record",
+    "sysid",
+    "fit",
+    "finetune",
+    "export",
+    "evaluate",
+)
+BACKENDS = ("mock", "serial")
+# PPO on the reach task ran 520 env steps/s on this 2-core CPU (runs/ship/reach-ppo-s0): the
+# default step cap is what --minutes could do at that rate; the wall clock stops it first.
+FINETUNE_STEPS_PER_S = 520.0
+# What a re-run must agree on to continue a folder: anything else would mix two adaptations.
+_IDENTITY = ("policy", "backend", "plant", "spec", "logs")
+
+
+class DeployInterruptedError(Sim2RealError):
+    """A deploy stage stopped cleanly on Ctrl-C / SIGTERM (the loop parked the arm)."""
+
+
+@dataclass(frozen=True)
+class AdaptOptions:
+    policy: str
+    out: Path
+    backend: str = "mock"
+    plant: str | None = None
+    spec: str | None = None
+    minutes: float = 10.0
+    finetune_steps: int | None = None  # a cap on fine-tune env steps (default from --minutes)
+    episodes: int = 20
+    logs: tuple[Path, ...] = ()  # given logs instead of recording
+    servo_rate_hz: float = 100.0
+    kinematic_s: float = 60.0
+    protocol: str = "s2r"
+    port: str | None = None
+    baud: int | None = None
+    joint_calibration: Path | None = None
+    cameras: tuple[int, int] = (0, 1)
+    stereo_calibration: Path | None = None
+    registration: Path | None = None
+    watchdog_s: float | None = None
+    start_timeout_s: float = 10.0
+    seed: int = 1_000_000
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ConfigError(f"--backend {self.backend!r} is not one of {list(BACKENDS)}")
+        if self.plant is not None and self.backend != "mock":
+            raise ConfigError(f"--plant is the mock arm's truth: not for --backend {self.backend}")
+        if self.backend == "serial":
+            if not self.port:
+                raise ConfigError("--backend serial needs --port (for example /dev/ttyUSB0)")
+            if self.stereo_calibration is None or self.registration is None:
+                raise ConfigError(
+                    "--backend serial needs --calibration (stereo) and --registration (base_T_cam)"
+                )
+            if self.watchdog_s is not None:
+                raise ConfigError("--watchdog-s is for --backend mock: a real arm keeps its spec's")
+        if not (math.isfinite(self.minutes) and self.minutes > 0):
+            raise ConfigError(f"--minutes must be > 0, got {self.minutes!r}")
+        if self.finetune_steps is not None and self.finetune_steps < 1:
+            raise ConfigError(f"--finetune-steps must be >= 1, got {self.finetune_steps}")
+        if self.episodes < 1:
+            raise ConfigError(f"--episodes must be >= 1, got {self.episodes}")
+        if not (math.isfinite(self.kinematic_s) and 2.0 <= self.kinematic_s <= 600.0):
+            raise ConfigError(f"--kinematic-s must be in [2, 600] s, got {self.kinematic_s!r}")
+        if not (math.isfinite(self.servo_rate_hz) and 10.0 <= self.servo_rate_hz <= 500.0):
+            raise ConfigError(f"--servo-rate must be in [10, 500] Hz, got {self.servo_rate_hz!r}")
+
+    def identity(self) -> dict[str, Any]:
+        return {
+            "policy": self.policy,
+            "backend": self.backend,
+            "plant": self.plant,
+            "spec": self.spec,
+            "logs": [str(p) for p in self.logs],
+        }
+
+
+def _now() -> str:
+    return dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def wilson(successes: int, n: int) -> list[float]:
+    from sim2real.evaluate.stats import wilson_interval
+
+    lo, hi = wilson_interval(successes, n)
+    return [round(lo, 4), round(hi, 4)]
+
+
+class Adapter:
+    """Runs the stages not yet done; ``report`` receives each stage's figures as it ends."""
+
+    def __init__(self, opts: AdaptOptions, report: Callable[[str, dict[str, Any]], None]) -> None:
+        self.opts = opts
+        self.out = opts.out
+        self.report = report
+        self.spec = load_spec(opts.spec)
+        self.status = self._load_status()
+
+    # ---- status -----------------------------------------------------------------------------
+    @property
+    def status_path(self) -> Path:
+        return self.out / "status.json"
+
+    def _load_status(self) -> dict[str, Any]:
+        if not self.status_path.is_file():
+            return {
+                "format": STATUS_FORMAT,
+                **self.opts.identity(),
+                "stages_done": [],
+                "figures": {},
+                "created_utc": _now(),
+            }
+        try:
+            status = json.loads(self.status_path.read_text())
+            done = list(status["stages_done"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise RunDirError(f"{self.status_path}: unreadable adapt status ({exc})") from None
+        for key in _IDENTITY:
+            if status.get(key) != self.opts.identity()[key]:
+                raise ConfigError(
+                    f"--out {str(self.out)!r} holds an adaptation with {key}={status.get(key)!r}, "
+                    f"not {self.opts.identity()[key]!r}: choose a new --out or the same options"
+                )
+        unknown = [s for s in done if s not in STAGES]
+        if unknown:
+            raise RunDirError(f"{self.status_path}: unknown stages {unknown}")
+        return dict(status)
+
+    def _mark_done(self, stage: str, figures: dict[str, Any]) -> None:
+        done = [s for s in self.status["stages_done"] if s != stage] + [stage]
+        self.status["stages_done"] = [s for s in STAGES if s in done]
+        self.status["figures"][stage] = figures
+        self.status["updated_utc"] = _now()
+        atomic_write_text(self.status_path, json.dumps(self.status, indent=1) + "\n")
+
+    def done(self, stage: str) -> bool:
+        return stage in self.status["stages_done"]
+
+    # ---- running ----------------------------------------------------------------------------
+    def run(self) -> dict[str, dict[str, Any]]:
+        """Every stage not done, in order; the figures of all stages."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        if not self.status_path.is_file():
+            atomic_write_text(self.status_path, json.dumps(self.status, indent=1) + "\n")
+        for stage in STAGES:
+            if self.done(stage):
+                self.report(stage, {**self.status["figures"][stage], "resumed": True})
+                continue
+            t0 = time.perf_counter()
+            figures = getattr(self, f"_stage_{stage}")()
+            figures["stage_wall_s"] = round(time.perf_counter() - t0, 2)
+            self._mark_done(stage, figures)
+            self.report(stage, figures)
+        return dict(self.status["figures"])
+
+    # ---- shared pieces ----------------------------------------------------------------------
+    def _control_hz(self) -> float:
+        from sim2real.adapt.checkpoint import resolve_source
+
+        return float(resolve_source(self.opts.policy).config.get("control_hz", 20.0))
+
+    def _deploy(self, policy: str, spec: ArmSpec, calibration: Path | None) -> dict[str, Any]:
+        from calibration.registration import load_base_T_cam
+        from sim2real.deploy.loop import LoopConfig
+        from sim2real.deploy.runner import DeployOptions, deploy
+
+        o = self.opts
+        opts = DeployOptions(
+            backend=o.backend,
+            protocol=o.protocol,
+            port=o.port,
+            baud=o.baud,
+            joint_calibration=calibration,
+            cameras=o.cameras,
+            stereo_calibration=o.stereo_calibration,
+            base_T_left=load_base_T_cam(o.registration) if o.registration else None,
+            plant=o.plant,
+            watchdog_s=o.watchdog_s,
+        )
+        config = LoopConfig(
+            rate_hz=self._control_hz(),
+            episodes=o.episodes,
+            seed=o.seed,
+            start_timeout_s=o.start_timeout_s,
+        )
+        result = deploy(policy, spec, opts, config)
+        if result.stopped_early is not None:
+            if result.stopped_early.startswith("interrupted"):
+                raise DeployInterruptedError(f"deploy of {policy!r} interrupted; the arm is parked")
+            raise ConfigError(f"deploy of {policy!r} stopped early: {result.stopped_early}")
+        n, k = len(result.episodes), result.successes
+        summary = result.summary()
+        return {
+            "episodes": n,
+            "successes": k,
+            "success_rate": round(k / max(n, 1), 4),
+            "success_wilson95": wilson(k, n),
+            "mean_final_distance_m": summary.get("mean_final_distance_m"),
+            "watchdog_trips": result.watchdog_trips,
+        }
+
+    def _write_json(self, name: str, body: dict[str, Any]) -> Path:
+        return atomic_write_text(self.out / name, json.dumps(body, indent=1) + "\n")
+
+    # ---- stages -----------------------------------------------------------------------------
+    def _stage_zero_shot(self) -> dict[str, Any]:
+        figures = self._deploy(self.opts.policy, self.spec, self.opts.joint_calibration)
+        self._write_json("zero_shot.json", figures)
+        return figures
+
+    def _stage_record(self) -> dict[str, Any]:
+        rec = self.out / "record"
+        if self.opts.logs:
+            return self._take_logs(rec)
+        from sim2real.sysid.record import save_log
+
+        servo, kin = self._record_on_arm()
+        seen = np.all(np.isfinite(kin["ee_marker_m"]), axis=1)
+        save_log(rec / "servo.npz", servo)
+        save_log(rec / "kinematics.npz", kin)
+        return {
+            "servo_periods": len(servo["t_s"]),
+            "kinematic_periods": len(kin["t_s"]),
+            "kinematic_s": self.opts.kinematic_s,
+            "marker_seen_rate": round(float(seen.mean()), 3),
+            "logs": ["record/servo.npz", "record/kinematics.npz"],
+        }
+
+    def _take_logs(self, rec: Path) -> dict[str, Any]:
+        """Given logs: a log with ``t_cmd_s`` is a servo log, one with wrist-marker keys a
+        kinematic one (a log may be both); each is checked and copied into ``record/``."""
+        servo, kin = [], []
+        for p in self.opts.logs:
+            try:
+                keys = set(np.load(p).files)
+            except FileNotFoundError:
+                raise ConfigError(f"log {str(p)!r} does not exist") from None
+            except (OSError, ValueError) as exc:
+                raise ConfigError(f"log {str(p)!r} is not a readable npz file: {exc}") from None
+            if "t_cmd_s" in keys:
+                servo.append(p)
+            if keys & {"ee_marker_m", "ee_est_m"}:
+                kin.append(p)
+            if "t_cmd_s" not in keys and not keys & {"ee_marker_m", "ee_est_m"}:
+                raise ConfigError(
+                    f"log {str(p)!r} is neither a servo log (t_cmd_s) nor has wrist-marker "
+                    "observations (ee_marker_m, or ee_est_m with ee_seen)"
+                )
+        if not servo or not kin:
+            what = "servo excitation log (sysid --record)" if not servo else "log with markers"
+            raise ConfigError(f"--logs needs at least one {what}")
+        from sim2real.sysid.fit import load_log
+        from sim2real.sysid.kinematics import load_marker_logs
+
+        for p in servo:
+            load_log(p, self.spec.n_joints)
+        load_marker_logs(kin, self.spec)  # a log without marker observations fails here
+        names: dict[str, list[str]] = {"servo": [], "kinematics": []}
+        for kind, paths in (("servo", servo), ("kinematics", kin)):
+            for i, p in enumerate(paths):
+                name = f"record/{kind}-{i}.npz"
+                atomic_write_bytes(self.out / name, Path(p).read_bytes())
+                names[kind].append(name)
+        return {"logs": names, "given": [str(p) for p in self.opts.logs]}
+
+    def _record_on_arm(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        import contextlib
+        import dataclasses
+
+        from hardware.serial_arm import SerialArm
+        from sim2real.adapt.excite import CameraView, MarkerView, RenderedView
+        from sim2real.adapt.excite import record_kinematic_excitation as kinematic
+        from sim2real.sysid.record import record_excitation
+
+        o = self.opts
+        with contextlib.ExitStack() as stack:
+            view: MarkerView
+            if o.backend == "mock":
+                from hardware.plant import Plant, load_plant
+
+                plant = Plant.nominal(self.spec) if o.plant is None else load_plant(o.plant)
+                plant.check_against(self.spec)
+                relaxed: dict[str, Any] = {}
+                if o.watchdog_s is not None:  # as the mock deploy: a loaded machine's timing
+                    safety = dataclasses.replace(plant.spec.safety, watchdog_timeout_s=o.watchdog_s)
+                    plant = dataclasses.replace(
+                        plant, spec=dataclasses.replace(plant.spec, safety=safety)
+                    )
+                    relaxed = {
+                        "host_watchdog_s": o.watchdog_s,
+                        "timeout_s": max(0.05, o.watchdog_s / 8),
+                    }
+                emulator = stack.enter_context(plant.emulator(o.protocol))
+                arm = SerialArm(
+                    self.spec, emulator.port, o.protocol, calibration=o.joint_calibration, **relaxed
+                )
+                view = RenderedView(plant.spec, emulator)
+            else:
+                from calibration.registration import load_base_T_cam
+                from calibration.triangulate import StereoRig
+                from sim2real.deploy.frames import OpenCVStereoCameras, wait_first
+
+                assert o.port is not None and o.stereo_calibration and o.registration
+                stereo = StereoRig.load(o.stereo_calibration)
+                frames = OpenCVStereoCameras(o.cameras, stereo.left.image_size)
+                stack.callback(frames.close)
+                frames.start()
+                wait_first(frames, 10.0)
+                arm = SerialArm(self.spec, o.port, o.protocol, o.baud, o.joint_calibration)
+                view = CameraView(frames, stereo, load_base_T_cam(o.registration))
+            stack.enter_context(arm)
+            try:
+                servo = record_excitation(arm, o.servo_rate_hz)
+                kin, snaps = kinematic(arm, view, o.kinematic_s)
+                arm.park()
+            except KeyboardInterrupt:
+                with contextlib.suppress(Exception):  # a second Ctrl-C: torque off on close
+                    arm.park()
+                raise
+        kin["ee_marker_m"] = view.markers_m(snaps)  # the mock renders here, the arm closed
+        return servo, kin
+
+    def _record_paths(self) -> tuple[list[Path], list[Path]]:
+        logs = self.status["figures"]["record"]["logs"]
+        if isinstance(logs, dict):
+            return (
+                [self.out / n for n in logs["servo"]],
+                [self.out / n for n in logs["kinematics"]],
+            )
+        return [self.out / "record/servo.npz"], [self.out / "record/kinematics.npz"]
+
+    def _stage_sysid(self) -> dict[str, Any]:
+        from sim2real.sysid.fit import fit_servo, load_log
+        from sim2real.sysid.kinematics import fit_kinematics, load_marker_logs
+
+        servo_logs, kin_logs = self._record_paths()
+        trajs = [load_log(p, self.spec.n_joints) for p in servo_logs]
+        servo, rms = fit_servo(trajs, self.spec, fit_droop=True)
+        servo_figures = {k: float(v) for k, v in asdict(servo).items()}
+        kin = fit_kinematics(load_marker_logs(kin_logs, self.spec), self.spec)
+        body = {
+            "servo": servo_figures,
+            "servo_rms_rad": float(rms),
+            "kinematics": {
+                "values": kin.values.tolist(),
+                "std": kin.std.tolist(),
+                "covariance": kin.covariance.tolist(),
+                "rms_m": kin.rms_m,
+                "n_used": kin.n_used,
+                "n_rejected": kin.n_rejected,
+            },
+        }
+        self._write_json("sysid.json", body)
+        return {
+            **{k: round(v, 5) for k, v in servo_figures.items()},
+            "servo_rms_rad": round(float(rms), 5),
+            **kin.as_dict(),
+        }
+
+    def _fits(self) -> tuple[Any, Any]:
+        from sim2real.sysid.kinematics import KinematicFit
+        from sim2real.sysid.model import ServoFit
+
+        try:
+            body = json.loads((self.out / "sysid.json").read_text())
+            k = body["kinematics"]
+            servo = ServoFit(**body["servo"])
+            kin = KinematicFit(
+                values=np.asarray(k["values"], dtype=float),
+                std=np.asarray(k["std"], dtype=float),
+                covariance=np.asarray(k["covariance"], dtype=float),
+                rms_m=float(k["rms_m"]),
+                n_used=int(k["n_used"]),
+                n_rejected=int(k["n_rejected"]),
+            )
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise RunDirError(f"{self.out / 'sysid.json'}: unreadable ({exc})") from None
+        return servo, kin
+
+    def _stage_fit(self) -> dict[str, Any]:
+        import yaml
+
+        from hardware.joint_calibration import ArmCalibration
+        from sim2real.adapt.checkpoint import resolve_source
+        from sim2real.adapt.fitted import centred_ranges, fitted_spec, offset_calibration
+        from sim2real.randomization import DRConfig
+        from sim2real.sysid.kinematics import describe, estimated_plant
+
+        servo, kin = self._fits()
+        src = resolve_source(self.opts.policy)
+        control_hz = float(src.config.get("control_hz", 20.0))
+        spec = fitted_spec(self.spec, servo, kin)
+        ranges = centred_ranges(dict(src.config["dr_ranges"]), servo, kin, spec, control_hz)
+        DRConfig.from_dict("adapt", ranges)  # validated before anything is written
+        base = (
+            ArmCalibration.load(self.opts.joint_calibration)
+            if self.opts.joint_calibration
+            else None
+        )
+        cal = offset_calibration(spec, self.opts.protocol, kin.joint_offset_rad, base)
+        cal.check_spec(spec)
+        cal.unit_limits(spec)  # the turned horns still reach every limit
+        header = (
+            f"ArmSpec {spec.name}: fitted by `sim2real adapt` (servo + kinematic fit)\n"
+            + describe(kin)
+            + "\njoint offsets: in joint_calibration.yaml beside this file (host-side)"
+        )
+        spec.to_yaml(self.out / "fitted.yaml", header=header)
+        preset = (
+            "# DR preset centred on the fit (sim2real adapt): the policy's training ranges with "
+            "actuation and\n# kinematics narrowed about the fitted values (sim2real.adapt.fitted)\n"
+            + yaml.safe_dump(ranges, sort_keys=True)
+        )
+        atomic_write_text(self.out / "fitted.dr.yaml", preset)
+        cal.save(self.out / "joint_calibration.yaml")
+        estimated_plant(spec, kin, max(0.0, -servo.droop_rad)).to_yaml(
+            self.out / "fitted.plant.yaml",
+            header="The arm as `sim2real adapt` estimated it (a plant file: --plant takes it)",
+        )
+        L0, L1 = self.spec.links, spec.links
+        return {
+            "spec": "fitted.yaml",
+            "dr_preset": "fitted.dr.yaml",
+            "joint_calibration": "joint_calibration.yaml",
+            "fingerprint": spec.fingerprint(),
+            "link_change_mm": [
+                round((getattr(L1, f) - getattr(L0, f)) * 1000, 2)
+                for f in ("base_height_m", "upper_arm_m", "forearm_m")
+            ],
+            "joint_offset_rad": [round(float(v), 5) for v in kin.joint_offset_rad],
+            "dr_link_half_width_m": ranges["kinematics"]["link_length_delta_m"][1],
+            "dr_offset_half_width_rad": ranges["kinematics"]["joint_offset_rad"][1],
+            "dr_latency_steps": ranges["actuation"]["latency_steps"],
+        }
+
+    def _fitted(self) -> ArmSpec:
+        return load_spec(self.out / "fitted.yaml")
+
+    def _stage_finetune(self) -> dict[str, Any]:
+        from sim2real.adapt.checkpoint import prepare_finetune_dir, resolve_source
+        from sim2real.randomization import load_preset
+        from sim2real.train.rundir import RunDir
+        from sim2real.train.runner import resume
+
+        o = self.opts
+        spec = self._fitted()
+        run_dir = self.out / "finetune"
+        budget_s = o.minutes * 60.0
+        rd = RunDir(run_dir)
+        status = rd.read_status() if rd.status_path.is_file() else None
+        ongoing = (
+            status is not None
+            and rd.has_config()
+            and rd.read_config().get("spec_fingerprint") == spec.fingerprint()
+            and rd.latest_checkpoint() is not None
+        )
+        if not ongoing:
+            src = resolve_source(o.policy)
+            steps = o.finetune_steps or max(1, int(budget_s * FINETUNE_STEPS_PER_S))
+            preset = self.out / "fitted.dr.yaml"
+            dr = load_preset(preset)
+            prepare_finetune_dir(src, run_dir, spec, preset, dr.to_dict(), steps, budget_s)
+            status = rd.read_status()
+        assert status is not None
+        start_steps = int(rd.read_config()["adapted_from"]["steps"])
+        left_s = budget_s - float(status.get("wall_s", 0.0))
+        if status.get("finished") or left_s <= 0:
+            result_steps, wall = int(status["steps_done"]), float(status.get("wall_s", 0.0))
+            rate, success = math.nan, None
+        else:
+            res = resume(run_dir, max_wall_s=left_s, progress=False)
+            result_steps, wall, rate = res.steps_done, res.wall_s, res.steps_per_s
+            success = res.train_success_rate
+        return {
+            "run_dir": "finetune",
+            "steps": result_steps - start_steps,
+            "wall_s": round(wall, 1),
+            "budget_s": budget_s,
+            "steps_per_s": round(rate, 1) if math.isfinite(rate) else None,
+            "train_success_rate": None if success is None else round(success, 3),
+        }
+
+    def _stage_export(self) -> dict[str, Any]:
+        from sim2real.export.exporter import export_policy
+        from sim2real.export.policy import load_policy
+
+        out = self.out / "policy.onnx"
+        export_policy(self.out / "finetune", "onnx", out)  # written atomically (onnx_io)
+        meta = load_policy(out).meta
+        fitted = self._fitted().fingerprint()
+        meta.check_spec(fitted)
+        return {"policy": "policy.onnx", "bytes": out.stat().st_size, "fingerprint": fitted}
+
+    def _stage_evaluate(self) -> dict[str, Any]:
+        figures = self._deploy(
+            str(self.out / "policy.onnx"), self._fitted(), self.out / "joint_calibration.yaml"
+        )
+        zero = self.status["figures"].get("zero_shot", {})
+        figures["zero_shot_success_rate"] = zero.get("success_rate")
+        figures["zero_shot_wilson95"] = zero.get("success_wilson95")
+        self._write_json("evaluate.json", figures)
+        return figures
+
+
+def summary_table(figures: dict[str, dict[str, Any]]) -> str:
+    """One line per stage: its headline figures."""
+    keys = {
+        "zero_shot": ("success_rate", "success_wilson95", "episodes"),
+        "record": ("servo_periods", "kinematic_periods", "marker_seen_rate"),
+        "sysid": ("latency_s", "time_constant_s", "max_speed_rad_s", "rms_m", "servo_rms_rad"),
+        "fit": ("link_change_mm", "joint_offset_rad", "fingerprint"),
+        "finetune": ("steps", "wall_s", "train_success_rate"),
+        "export": ("bytes", "fingerprint"),
+        "evaluate": ("success_rate", "success_wilson95", "zero_shot_success_rate"),
+    }
+    lines = [f"{'stage':10s} {'wall s':>8s}  figures"]
+    for stage in STAGES:
+        f = figures.get(stage)
+        if f is None:
+            lines.append(f"{stage:10s} {'-':>8s}  not done")
+            continue
+        shown = ", ".join(f"{k}={f[k]}" for k in keys[stage] if k in f)
+        lines.append(f"{stage:10s} {f.get('stage_wall_s', 0.0):8.1f}  {shown}")
+    return "\n".join(lines)

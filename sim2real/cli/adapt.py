@@ -1,0 +1,128 @@
+"""``sim2real adapt POLICY``: record on the arm, fit, fine-tune in sim, export, evaluate on the arm.
+
+Stages and files: ``sim2real.adapt.pipeline``. Ctrl-C / SIGTERM stop it cleanly (the arm parked,
+finished stages kept); running it again with the same ``--out`` (or ``--resume``) continues.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from sim2real.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("policy", help="a run directory or a shipped policy name (with checkpoint)")
+    parser.add_argument("--backend", default="mock", help="mock | serial (default: mock)")
+    parser.add_argument(
+        "--plant", default=None, help="mock: the arm as it really is (plant YAML or preset)"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default runs/adapt-<policy>-<utc>)"
+    )
+    parser.add_argument(
+        "--resume", action="store_true", help="continue --out (it must exist; same options)"
+    )
+    parser.add_argument(
+        "--minutes", type=float, default=10.0, help="fine-tune wall-clock budget (default 10)"
+    )
+    parser.add_argument(
+        "--finetune-steps", type=int, default=None, help="cap on fine-tune env steps"
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=20, help="deploy episodes before and after (default 20)"
+    )
+    parser.add_argument(
+        "--logs", nargs="+", type=Path, default=(), metavar="LOG",
+        help="take these logs instead of recording: servo excitation logs (sysid --record) and "
+        "logs with wrist-marker observations (deploy --log)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--kinematic-s", type=float, default=60.0, help="kinematic excitation length in s"
+    )
+    parser.add_argument("--servo-rate", type=float, default=100.0, help="servo excitation Hz")
+    parser.add_argument("--spec", default=None, help="ArmSpec YAML (default: the shipped arm)")
+    parser.add_argument("--protocol", default="s2r", help="s2r | feetech | maestro")
+    parser.add_argument("--port", default=None, help="serial port (--backend serial)")
+    parser.add_argument("--baud", type=int, default=None)
+    parser.add_argument("--joint-calibration", type=Path, default=None, help="arm calibration YAML")
+    parser.add_argument("--cameras", default="0,1", help="left,right cv2.VideoCapture indices")
+    parser.add_argument("--calibration", type=Path, default=None, help="stereo calibration file")
+    parser.add_argument("--registration", type=Path, default=None, help="base_T_cam file")
+    parser.add_argument(
+        "--watchdog-s", type=float, default=None,
+        help="mock only: a longer watchdog than the spec's, for a loaded machine (tests)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--start-timeout", type=float, default=10.0, help="seconds an episode waits for its objects"
+    )
+    parser.add_argument("--seed", type=int, default=1_000_000, help="deploy placement seed")
+    parser.add_argument("--json", action="store_true", help="one JSON line per stage")
+
+
+def _default_out(policy: str) -> Path:
+    stem = Path(policy).name or "policy"
+    utc = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    return Path("runs") / f"adapt-{stem}-{utc}"
+
+
+def run(args: argparse.Namespace) -> int:
+    from sim2real.adapt.pipeline import Adapter, AdaptOptions, DeployInterruptedError, summary_table
+
+    try:
+        cams = tuple(int(c) for c in args.cameras.split(","))
+    except ValueError:
+        raise ConfigError(f"--cameras {args.cameras!r} must be two integers like 0,1") from None
+    if len(cams) != 2:
+        raise ConfigError(f"--cameras {args.cameras!r} must name exactly two cameras")
+    if args.resume and args.out is None:
+        raise ConfigError("--resume needs --out: the folder of the adaptation to continue")
+    if args.resume and not (args.out / "status.json").is_file():
+        raise ConfigError(f"--resume: {str(args.out)!r} holds no adaptation (no status.json)")
+    opts = AdaptOptions(
+        policy=args.policy,
+        out=args.out or _default_out(args.policy),
+        backend=args.backend,
+        plant=args.plant,
+        spec=args.spec,
+        minutes=args.minutes,
+        finetune_steps=args.finetune_steps,
+        episodes=args.episodes,
+        logs=tuple(args.logs),
+        servo_rate_hz=args.servo_rate,
+        kinematic_s=args.kinematic_s,
+        protocol=args.protocol,
+        port=args.port,
+        baud=args.baud,
+        joint_calibration=args.joint_calibration,
+        cameras=(cams[0], cams[1]),
+        stereo_calibration=args.calibration,
+        registration=args.registration,
+        watchdog_s=args.watchdog_s,
+        start_timeout_s=args.start_timeout,
+        seed=args.seed,
+    )
+
+    def report(stage: str, figures: dict[str, Any]) -> None:
+        if args.json:
+            print(json.dumps({"stage": stage, **figures}), flush=True)
+        else:
+            print(f"[{stage}] " + ", ".join(f"{k}={v}" for k, v in figures.items()), flush=True)
+
+    adapter = Adapter(opts, report)
+    print(f"sim2real adapt: {opts.out}", file=sys.stderr, flush=True)
+    try:
+        figures = adapter.run()
+    except (
+        DeployInterruptedError
+    ) as exc:  # the deploy loop stopped cleanly; main reports the signal
+        print(f"sim2real adapt: {exc}", file=sys.stderr)
+        return 1
+    table = summary_table(figures)
+    print(table, file=sys.stderr if args.json else sys.stdout, flush=True)
+    return 0
