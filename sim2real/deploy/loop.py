@@ -10,6 +10,8 @@ observation readings, how success is judged). The observation is built by the sa
 Every command passes the safety filter exactly once, inside ``Arm.command``. The loop never
 waits for a camera: it takes the newest frame pair and the trackers predict to the command time.
 On Ctrl-C or any error the arm holds, parks and goes torque-off, and the trajectory log is kept.
+Success is judged as the env judges it, after the command has acted: period k on the world seen
+at the start of period k+1, and the last period on one more view, a period after its command.
 """
 
 from __future__ import annotations
@@ -85,7 +87,9 @@ LOG_KEYS = (
 @dataclass
 class LoopLog:
     """Everything per period, for replay, sysid and datasets (saved as npz). ``objects`` holds
-    each tracked object's estimate (``<name>_est_m``) and blind time (``<name>_blind_s``)."""
+    each tracked object's estimate (``<name>_est_m``) and blind time (``<name>_blind_s``). The
+    truth (``true_tool_m``, ``<name>_true_m``, ``grasped``) is the world at the period's read,
+    beside its estimates: the view that judged the previous period's command."""
 
     rows: dict[str, list[Any]] = field(default_factory=lambda: {k: [] for k in LOG_KEYS})
 
@@ -265,6 +269,7 @@ class DeployLoop:
                 prev_action = np.zeros(self.decoder.n_actions)
                 invalid = 0
                 reason: str | None = None
+                sent: np.ndarray | None = None  # the last command, judged one period later
                 next_t = time.perf_counter()
                 last_start = next_t
                 for step in range(self.steps):
@@ -283,7 +288,14 @@ class DeployLoop:
                     state = self.arm.read_state()
                     t1 = time.perf_counter()
                     percept = self.perception.perceive(state, time.monotonic())
+                    # the world now (truth or estimates): what the last period's command did
+                    view = self._view(contract, percept, state.positions_rad, sent)
                     t2 = time.perf_counter()
+                    if step > 0 and view is not None:
+                        reason = contract.score(view, step - 1) or reason
+                    if reason is not None:
+                        log.warning("episode %d stopped: %s", episode, reason)
+                        break
                     try:
                         obs = self._observation(
                             contract, percept, state.positions_rad, targets, prev_action, step
@@ -312,25 +324,19 @@ class DeployLoop:
                         SECTIONS, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=True
                     ):
                         sections[name].append(dt)
-                    view = self.world.view(state.positions_rad, sent)
-                    if view is None:  # a real arm: judge on the estimates
-                        view = self._estimate_view(contract, percept, state.positions_rad, sent)
-                    if view is not None:
-                        reason = contract.score(view, step) or reason
                     self._log_period(
                         episode, step, t0, obs, action, targets, sent, state.positions_rad,
                         percept, view, periods[-1] if step > 0 else math.nan, sections,
                     )  # fmt: skip
                     if self.on_frame is not None:
                         self.on_frame()
-                    if reason is not None:
-                        log.warning("episode %d stopped: %s", episode, reason)
-                        break
                     next_t += period
                     if next_t - time.perf_counter() > 0:
                         _sleep_until(next_t)
                     else:
                         next_t = time.perf_counter()  # do not try to catch up: it bursts
+                else:  # the last command has had one period to act (paced above): judge it
+                    reason = self._judge_last(contract, sent) or reason
                 blind += invalid
                 out = contract.outcome()
                 episodes.append(EpisodeRecord(out.success, out.distance_m, out.figures, reason))
@@ -434,12 +440,41 @@ class DeployLoop:
                 self.arm.park()
             time.sleep(0.02)
 
+    # ---- success ----------------------------------------------------------------------------
+    def _view(
+        self,
+        contract: DeployContract,
+        percept: Percept,
+        positions_rad: np.ndarray,
+        commanded_rad: np.ndarray | None,
+    ) -> View | None:
+        """The world as perceived at the start of a period: the truth where the world knows it,
+        else the estimates. It judges the previous period's command, which has had one period
+        to act (as the env judges a step after its physics); judged right after the command,
+        the tool would lag by one period of motion (~3 mm per sample on a moving seam)."""
+        view = self.world.view(positions_rad, commanded_rad)
+        if view is None:  # a real arm: judge on the estimates
+            view = self._estimate_view(contract, percept, positions_rad, commanded_rad)
+        return view
+
+    def _judge_last(self, contract: DeployContract, sent: np.ndarray | None) -> str | None:
+        """Judge the episode's last command one period after it (the loop paced that period)."""
+        if sent is None:
+            return None
+        state = self.arm.read_state()
+        percept = self.perception.perceive(state, time.monotonic())
+        view = self._view(contract, percept, state.positions_rad, sent)
+        reason = None if view is None else contract.score(view, self.steps - 1)
+        if reason is not None:
+            log.warning("episode stopped at its last period: %s", reason)
+        return reason
+
     def _estimate_view(
         self,
         contract: DeployContract,
         percept: Percept,
         positions_rad: np.ndarray,
-        sent: np.ndarray,
+        sent: np.ndarray | None,
     ) -> View | None:
         if percept.tool_m is None:
             return None
@@ -509,11 +544,11 @@ class DeployLoop:
         """Home in two moves: the joints first, the gripper as it is (a cube pressed against the
         table would wedge the fingers), then the gripper opens up high and a held cube drops."""
         n = self.decoder.spec.n_joints
-        if self.arm.is_enabled and self.decoder.spec.n_actuators > n:
-            target = self.decoder.spec.actuator_home_rad.copy()
-            target[n:] = self.arm.read_state().positions_rad[n:]
-            self.arm.move_to(target)
         try:
+            if self.arm.is_enabled and self.decoder.spec.n_actuators > n:
+                target = self.decoder.spec.actuator_home_rad.copy()
+                target[n:] = self.arm.read_state().positions_rad[n:]
+                self.arm.move_to(target)
             self.arm.home()
         except HardwareError as exc:
             if not self.world.places_objects:

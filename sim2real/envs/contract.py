@@ -138,7 +138,9 @@ class DeployContract(ABC):
     # ---- success ---------------------------------------------------------------------------
     @abstractmethod
     def score(self, view: View, step: int) -> str | None:
-        """Account for period ``step`` (after its command); returns a reason to end the
+        """Account for period ``step`` on ``view``, the world one period after that period's
+        command (as the env judges a step after its physics: the loop takes it at the start of
+        period ``step + 1``, and once more after the last command); returns a reason to end the
         episode early (a dropped cube), or None."""
 
     @abstractmethod

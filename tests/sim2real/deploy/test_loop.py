@@ -202,3 +202,46 @@ def test_cameras_that_stop_delivering_stop_the_run_safely(
             ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec, opts,
             LoopConfig(episodes=20, start_timeout_s=60),
         )  # fmt: skip
+
+
+def test_success_is_judged_after_the_last_command_has_acted(
+    spec: ArmSpec, reach_io: PolicyIO
+) -> None:
+    """A policy that waits ~2 cm short of the target and covers the rest with its very last
+    command: a success only if the loop judges that command once it has had its period to act
+    (the env judges a step after its physics). Judged right after it is sent, the tool is still
+    ~2 cm away. Real MuJoCo on the real-time clock; no timing is asserted (a slow machine only
+    gives the servos longer)."""
+    steps, n, max_delta = 25, spec.n_joints, reach_io.decoder.max_delta_rad
+    sl = {f.name: slice(f.start, f.stop) for f in reach_io.builder.layout()}
+    lo = np.array([j.lower_rad for j in spec.joints])
+    hi = np.array([j.upper_rad for j in spec.joints])
+    calls = {"n": 0}
+    short_of_target_m: list[float] = []
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        step = calls["n"] % steps
+        calls["n"] += 1
+        goal, q_cmd = obs[sl["goal_pos"]], obs[sl["joint_target"]][:n]
+        q_goal = spec.inverse_kinematics(goal)
+        assert q_goal is not None
+        if step < steps - 1:  # park 0.09 rad per joint short of the goal: one command away
+            shorts = [q_goal + s * 0.09 for s in (-1.0, 1.0) if np.all(lo < q_goal + s * 0.09)
+                      and np.all(q_goal + s * 0.09 < hi)]  # fmt: skip
+            q_des = max(shorts, key=lambda q: np.linalg.norm(spec.forward_kinematics(q) - goal))
+            if step == steps - 2:
+                short_of_target_m.append(
+                    float(np.linalg.norm(spec.forward_kinematics(q_des) - goal))
+                )
+        else:
+            q_des = q_goal
+        return np.clip((q_des - q_cmd) / max_delta, -1.0, 1.0)
+
+    result = run_policy(
+        policy, reach_io, spec, DeployOptions(backend="sim"),
+        LoopConfig(episodes=2, episode_steps=steps, rate_hz=10.0),
+    )  # fmt: skip
+    assert len(short_of_target_m) == 2 and min(short_of_target_m) > 0.015, short_of_target_m
+    distances = [e.distance_m for e in result.episodes]
+    assert result.successes == 2, distances
+    assert max(distances) < 0.005, distances
