@@ -2,7 +2,13 @@
 measure its held-out success in its env (DR ``default`` and ``none``, Wilson intervals) and
 write its card. ``sim2real policies`` lists what is shipped; every command takes the name.
 
-    .venv/bin/python bench/ship_policies.py RUN_DIR NAME --summary "what it is for"
+    .venv/bin/python bench/ship_policies.py RUN_DIR NAME --summary "what it is for" [--checkpoint]
+
+``--checkpoint`` also ships the run's final SB3 model as ``<name>.zip`` (actor, critic,
+optimiser) and ``<name>.train.json`` (the run's config and its observation-normalisation
+statistics as numbers), named in the card's ``checkpoint``: ``sim2real adapt`` fine-tunes from
+them. ``--add-checkpoint`` adds them to an already shipped policy without measuring again, after
+checking that the run's policy is the shipped ONNX (parity).
 
 Prints JSON lines; the card keeps the figures with the date and the machine.
 """
@@ -24,6 +30,36 @@ def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
     print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
 
 
+def ship_checkpoint(run: str, name: str) -> dict[str, object]:
+    """``<name>.zip`` (the run's final model) and ``<name>.train.json`` beside the ONNX."""
+    import pickle
+
+    from hardware.atomic import atomic_write_bytes, atomic_write_text
+    from sim2real.adapt.checkpoint import train_stats_text
+    from sim2real.policies import SHIPPED_DIR
+    from sim2real.train.rundir import RunDir
+
+    rd = RunDir(run)
+    config = rd.read_config()
+    status = rd.read_status()
+    if not status.get("finished"):
+        raise SystemExit(f"{run} has not finished training")
+    model, vn_path = rd.policy_files()
+    vn = None
+    if vn_path is not None:
+        with vn_path.open("rb") as fh:  # our own run's file, not package data
+            vn = pickle.load(fh)
+    steps = int(status["steps_done"])
+    zip_path = atomic_write_bytes(SHIPPED_DIR / f"{name}.zip", model.read_bytes())
+    stats = atomic_write_text(
+        SHIPPED_DIR / f"{name}.train.json",
+        train_stats_text(config, steps, int(status.get("segments", 1)), vn),
+    )
+    size = zip_path.stat().st_size + stats.stat().st_size
+    emit("checkpoint_shipped", name, "", bytes=size, steps=steps)
+    return {"model": zip_path.name, "stats": stats.name, "steps": steps}
+
+
 def main() -> None:
     import torch
 
@@ -39,8 +75,22 @@ def main() -> None:
     p.add_argument("name")
     p.add_argument("--summary", default="")
     p.add_argument("--episodes", type=int, default=200)
+    p.add_argument("--checkpoint", action="store_true", help="also ship the SB3 checkpoint")
+    p.add_argument(
+        "--add-checkpoint", action="store_true", help="only add the checkpoint to a shipped card"
+    )
     a = p.parse_args()
     out = SHIPPED_DIR / f"{a.name}.onnx"
+    if a.add_checkpoint:
+        card_path = SHIPPED_DIR / f"{a.name}.json"
+        card = json.loads(card_path.read_text())
+        diff = parity_check(a.run, out, 1000)
+        emit("parity_run_vs_shipped_max_abs_action_diff", diff, "1", name=a.name)
+        if diff > 1e-4:
+            raise SystemExit(f"{a.run} is not the run shipped as {a.name} (action diff {diff})")
+        card["checkpoint"] = ship_checkpoint(a.run, a.name)
+        atomic_write_bytes(card_path, (json.dumps(card, indent=2) + "\n").encode())
+        return
     export_policy(a.run, "onnx", out)
     diff = parity_check(a.run, out, 1000)
     emit("parity_max_abs_action_diff", diff, "1", name=a.name)
@@ -75,6 +125,8 @@ def main() -> None:
             "parity_max_abs_action_diff": diff,
         },
     }
+    if a.checkpoint:
+        card["checkpoint"] = ship_checkpoint(a.run, a.name)
     atomic_write_bytes(SHIPPED_DIR / f"{a.name}.json", (json.dumps(card, indent=2) + "\n").encode())
     emit("shipped", a.name, "", bytes=out.stat().st_size)
 
