@@ -1,0 +1,257 @@
+"""ArmEnv on real parts: SimArm's MuJoCo physics, and the full mock chain (the emulator behind a
+real pty, MuJoCo driven by its servos, free-running rendered cameras, ArUco, triangulation,
+Kalman). Mock runs relax the watchdog (``MOCK``); no assertion depends on a rate being met."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Iterator
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from hardware.arm import off_pose_limit_rad
+from hardware.spec import ArmSpec
+from sim2real.deploy.loop import DeployStopError
+from sim2real.deploy.policy_io import PolicyIO
+from sim2real.deploy.runner import DeployOptions
+from sim2real.envs.base import REWARDS, Arm3Env
+from sim2real.envs.pick import LIFT_M
+from sim2real.errors import ConfigError
+from sim2real.finetune.arm_env import ArmEnv, ArmEnvConfig
+from sim2real.finetune.keys import RESET_DONE, HumanKeys
+
+from .conftest import MOCK, ik_reach  # type: ignore[import-not-found]
+
+HANG_S = 60.0  # bounds that only turn a hang into a failure
+SIM = DeployOptions(backend="sim")
+
+
+@pytest.fixture
+def reach_env(spec: ArmSpec, reach_io: PolicyIO) -> Iterator[ArmEnv]:
+    env = ArmEnv(reach_io, spec, SIM)
+    try:
+        yield env
+    finally:
+        env.close()
+
+
+def _wait(predicate: object, what: str) -> None:
+    deadline = time.monotonic() + HANG_S
+    while not predicate():  # type: ignore[operator]
+        assert time.monotonic() < deadline, f"never happened: {what}"
+        time.sleep(0.01)
+
+
+def _parked(spec: ArmSpec, q_rad: np.ndarray) -> bool:
+    return bool(np.all(np.abs(q_rad - spec.actuator_park_rad) <= off_pose_limit_rad(spec)))
+
+
+def test_check_env_passes_on_the_sim_backend_and_close_parks(
+    spec: ArmSpec, reach_io: PolicyIO
+) -> None:
+    env = ArmEnv(reach_io, spec, SIM)
+    try:
+        check_env(env)  # its close check builds a twin env on the same backend and closes it twice
+    finally:
+        env.close()
+    env.close()  # twice is fine
+    arm = env.arm
+    assert not arm.is_connected and not arm.torque_on  # type: ignore[attr-defined]
+    assert _parked(spec, arm.received[-1])  # type: ignore[attr-defined]
+    with pytest.raises(ConfigError, match="closed"):
+        env.reset()
+
+
+def test_check_env_passes_on_the_mock_backend_over_a_pty(spec: ArmSpec, reach_io: PolicyIO) -> None:
+    env = ArmEnv(reach_io, spec, DeployOptions(**MOCK), ArmEnvConfig(start_timeout_s=60))
+    emulator = env.arm.emulator  # type: ignore[attr-defined]
+    try:
+        check_env(env)
+        # the safety filter once per step, counted by the filter itself (a period where an
+        # estimate went missing holds the arm once instead, and is counted apart)
+        env.reset(seed=3)
+        before, blind = env.safety_stats["commands"], env.blind_periods
+        for _ in range(10):
+            env.step(env.action_space.sample())
+        assert env.safety_stats["commands"] - before == 10 + env.blind_periods - blind
+        assert emulator.applied("targets"), "no command reached the emulated device"
+        assert env.timing()["loop_hz"] > 0
+    finally:
+        env.close()
+    # parked (the last targets that went out over the pty), then torque off and released
+    assert not env.arm.is_enabled and not env.arm.is_connected
+    last = env.arm.last_sent_rad
+    assert last is not None and _parked(spec, last)
+
+
+def test_the_safety_filter_runs_exactly_once_per_step(
+    reach_env: ArmEnv, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from hardware.safety import SafetyFilter
+
+    calls = {"filter": 0}
+    real_filter = SafetyFilter.filter
+
+    def counting(self: SafetyFilter, *a: object, **k: object) -> np.ndarray:
+        calls["filter"] += 1
+        return real_filter(self, *a, **k)  # type: ignore[arg-type]
+
+    reach_env.reset(seed=0)
+    monkeypatch.setattr(SafetyFilter, "filter", counting)
+    for _ in range(15):
+        reach_env.step(np.ones(3, dtype=np.float32))  # large steps: the clamp acts
+    assert calls["filter"] == 15
+    assert reach_env.safety_stats["step_clamped"] >= 1
+    steps = np.abs(np.diff(np.asarray(reach_env.arm.received)[-16:], axis=0))  # type: ignore[attr-defined]
+    assert np.all(steps <= reach_env.arm_spec.safety.max_step_rad + 1e-9)
+
+
+def test_an_ik_policy_reaches_rewards_are_the_training_rewards_and_episodes_truncate(
+    spec: ArmSpec, reach_io: PolicyIO, reach_env: ArmEnv
+) -> None:
+    train_env = Arm3Env(task="reach")
+    assert reach_env._reward_fn is train_env._reward_fn is REWARDS["distance"]
+    act = ik_reach(spec, reach_io)
+    goal_delta = reach_io.builder.split
+    obs, info = reach_env.reset(seed=5)
+    rewards, steps, truncated = [], 0, False
+    while not truncated:
+        obs, reward, terminated, truncated, info = reach_env.step(act(obs))
+        steps += 1
+        d = float(np.linalg.norm(goal_delta(obs)["goal_delta"]))
+        assert reward == pytest.approx(float(REWARDS["distance"](d, d < 0.01)), abs=1e-6)
+        assert not terminated
+        rewards.append(reward)
+    assert steps == reach_io.episode_steps == reach_env.episode_steps
+    assert info["is_success"] and info["judged_on"] == "truth", info
+    assert rewards[-1] > rewards[0] and rewards[-1] > 0.9  # the success bonus, paid near 0 m
+    with pytest.raises(gym.error.ResetNeeded):
+        reach_env.step(np.zeros(3, dtype=np.float32))
+    # between episodes the arm is held on a thread of its own (the watchdogs stay fed)
+    held = reach_env.safety_stats["commands"]
+    _wait(lambda: reach_env.safety_stats["commands"] >= held + 3, "holds between episodes")
+    reach_env.reset(seed=6)  # stops the holder before touching the arm
+    assert reach_env._idle is None
+
+
+def test_a_virtual_reach_target_is_judged_against_the_tool(
+    spec: ArmSpec, reach_io: PolicyIO
+) -> None:
+    """A real arm's reach target is virtual: nothing is placed, the policy observes the
+    contract's placement, and success is the tool within 1 cm of it (here the truth's tool)."""
+    env = ArmEnv(reach_io, spec, SIM, ArmEnvConfig(virtual_target=True))
+    try:
+        obs, info = env.reset(seed=11)
+        target = info["virtual_target_m"]
+        np.testing.assert_allclose(reach_io.builder.split(obs)["goal_pos"], target, atol=1e-6)
+        plate = env.world.inner_world.objects.truth(env.arm.data)["target"]  # type: ignore[attr-defined]
+        assert plate[2] < -0.5, "the plate was not placed"
+        act, truncated = ik_reach(spec, reach_io), False
+        while not truncated:
+            obs, _, _, truncated, info = env.step(act(obs))
+        tool = env.arm.tool_position()  # type: ignore[attr-defined]
+        assert info["is_success"] and np.linalg.norm(tool - target) < 0.01
+    finally:
+        env.close()
+
+
+def test_pick_starts_from_the_cube_it_sees_and_refuses_mujoco_shaping(
+    spec: ArmSpec, pick_io: PolicyIO
+) -> None:
+    with pytest.raises(ConfigError, match=r"PickTask.shaping.*shaping=False") as err:
+        ArmEnv(pick_io, spec, SIM)
+    assert "\n" not in str(err.value)
+    env = ArmEnv(pick_io, spec, SIM, ArmEnvConfig(shaping=False))
+    try:
+        obs, _ = env.reset(seed=2)
+        f = pick_io.builder.split(obs)
+        cube = env.world.view(env.arm.read_state().positions_rad, None).objects["cube"]  # type: ignore[union-attr]
+        np.testing.assert_allclose(f["cube_pos"], cube, atol=1e-3)
+        np.testing.assert_allclose(f["goal_pos"], cube + (0.0, 0.0, LIFT_M), atol=1e-3)
+        obs, reward, _, _, info = env.step(np.zeros(4, dtype=np.float32))
+        d = float(np.linalg.norm(pick_io.builder.split(obs)["goal_delta"]))
+        assert reward == pytest.approx(-5.0 * d, abs=1e-6) and not info["is_success"]
+    finally:
+        env.close()
+
+
+@pytest.fixture
+def pty_keys() -> Iterator[tuple[int, HumanKeys]]:
+    master, slave = os.openpty()
+    keys = HumanKeys(slave).start()
+    try:
+        yield master, keys
+    finally:
+        keys.stop()
+        os.close(master)
+        os.close(slave)
+
+
+def test_keys_pause_mark_and_estop_the_env(
+    spec: ArmSpec, reach_io: PolicyIO, pty_keys: tuple[int, HumanKeys]
+) -> None:
+    master, keys = pty_keys
+    env = ArmEnv(reach_io, spec, SIM, human=keys)
+    try:
+        env.reset(seed=1)
+        os.write(master, b" ")
+        _wait(lambda: keys.paused, "pause")
+        done = threading.Event()
+        worker = threading.Thread(target=lambda: (env.step(np.zeros(3)), done.set()))
+        worker.start()
+        held = env.safety_stats["commands"]
+        _wait(lambda: env.safety_stats["commands"] >= held + 3, "holds while paused")
+        assert not done.is_set(), "a paused env must not step"
+        os.write(master, b" ")
+        worker.join(HANG_S)
+        assert done.is_set()
+        os.write(master, b"s")  # the person saw it succeed
+        _wait(lambda: len(keys.interventions) == 3, "the mark")
+        truncated = False
+        while not truncated:
+            _, _, _, truncated, info = env.step(np.zeros(3))
+        assert info["is_success"] is True and info["judged_on"] == "human"
+        assert info["judged_success"] is False  # the cameras' verdict is kept beside it
+        env.reset(seed=2)
+        os.write(master, b"e")
+        _wait(lambda: env.arm.estop_reason is not None, "the e-stop")
+        with pytest.raises(DeployStopError, match="e-stop key"):
+            env.step(np.zeros(3))
+        assert not env.arm.is_enabled
+        with pytest.raises(DeployStopError, match="e-stop key"):
+            env.reset()  # until a person clears it
+    finally:
+        env.close()
+    assert [i.action for i in keys.interventions] == ["pause", "resume", "success", "estop"]
+
+
+def test_a_reset_waits_for_the_reset_key_holding_the_arm(
+    spec: ArmSpec,
+    reach_io: PolicyIO,
+    pty_keys: tuple[int, HumanKeys],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    master, keys = pty_keys
+    env = ArmEnv(reach_io, spec, SIM, ArmEnvConfig(confirm_reset=True), human=keys)
+    try:
+        returned: list[float] = []
+        worker = threading.Thread(
+            target=lambda: (env.reset(seed=0), returned.append(time.monotonic()))
+        )
+        worker.start()
+        _wait(lambda: "press r" in caplog.text, "the prompt")
+        held = env.safety_stats["commands"]
+        _wait(lambda: env.safety_stats["commands"] >= held + 3, "holding at the prompt")
+        assert not returned, "the reset must wait for the key"
+        os.write(master, b"r")
+        worker.join(HANG_S)
+        assert returned
+        press = keys.interventions[-1]
+        assert press.action == RESET_DONE and press.monotonic_s < returned[0]
+    finally:
+        env.close()
