@@ -84,8 +84,8 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         if not args.run_dir:
             raise ConfigError("--resume needs --run-dir RUN_DIR")
-        config = RunDir(args.run_dir).read_config()
-        _check_resume_flags(args, dict(config.get("train", {})))
+        meta = RunDir(args.run_dir).read_meta()
+        _check_resume_flags(args, dict(meta.train))
         result = resume(
             args.run_dir,
             steps=args.steps,

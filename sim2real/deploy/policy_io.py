@@ -71,7 +71,7 @@ def io_for(
 def policy_io(spec: ArmSpec, meta: PolicyMeta) -> PolicyIO:
     """Pure: the same inputs always give the same builder and decoder; no env is built. The
     layout is checked against the one the policy recorded."""
-    env_kwargs = dict(meta.extra.get("env_kwargs", {}) or {})
+    env_kwargs = dict(meta.env_kwargs)
     io = io_for(spec, meta.env_id, meta.max_delta_rad, env_kwargs, meta.source)
     meta.check_layout([(f.name, f.stop - f.start) for f in io.builder.layout()])
     if meta.obs_keys is None and io.builder.size != meta.flat_obs_dim:

@@ -41,22 +41,19 @@ class EvalTarget:
     def load(cls, path: str | Path) -> EvalTarget:
         policy = load_policy(path)
         m = policy.meta
-        try:
-            spec = ArmSpec.from_dict(m.extra["spec"], source=f"{path}: spec")
-            ranges = m.extra.get("dr_ranges")
-            train_dr = DRConfig.from_dict(m.dr, ranges) if ranges else load_preset(m.dr)
-        except KeyError as exc:
-            raise PolicyError(f"policy {str(path)!r}: metadata lacks {exc}") from None
+        spec = ArmSpec.from_dict(dict(m.spec), source=f"{path}: spec")
+        ranges = m.dr_ranges
+        train_dr = DRConfig.from_dict(m.dr, ranges) if ranges else load_preset(m.dr)
         if spec.fingerprint() != m.spec_fingerprint:
             raise PolicyError(f"policy {str(path)!r}: embedded spec does not match its fingerprint")
         return cls(
             Path(path),
             policy,
             m.env_id,
-            dict(m.extra.get("env_kwargs", {})),
+            dict(m.env_kwargs),
             spec,
             train_dr,
-            tuple(int(s) for s in m.extra.get("training_seeds", ())),
+            m.training_seeds,
         )
 
     def dr(self, name: str | None) -> DRConfig:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 
 from sim2real.export.formats import FORMATS, get_format, load_run_dir
-from sim2real.export.policy import PolicyError, PolicyMeta
+from sim2real.export.policy import PolicyError
 from sim2real.export.program import Op
 from sim2real.export.torch_policy import TorchPolicy
 
@@ -152,8 +153,7 @@ def export_trained(tp: TorchPolicy, fmt: str, out: str | Path, source: str = "")
     """Write ``tp``'s deterministic policy (normalisation folded in) as ``fmt`` to ``out``."""
     saver = get_format(fmt).save
     program = build_program(tp)
-    extra = {**tp.meta.extra, "exported_from": source, "format": fmt}
-    meta = PolicyMeta(**{**tp.meta.__dict__, "source": str(out), "extra": extra})
+    meta = replace(tp.meta, exported_from=source, export_format=fmt, source=str(out))
     return saver(out, program, meta)
 
 

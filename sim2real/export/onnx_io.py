@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from hardware.atomic import atomic_write_bytes
-from sim2real.export.policy import Policy, PolicyError, PolicyMeta
+from sim2real.export.policy import Policy, PolicyError, PolicyMeta, meta_from_json
 from sim2real.export.program import Op, validate_program
 
 OPSET = 17
@@ -150,7 +150,7 @@ class OnnxPolicy(Policy):
         props = self._session.get_modelmeta().custom_metadata_map
         if META_KEY not in props:
             raise PolicyError(f"policy {src!r} is an ONNX model without sim2real metadata")
-        self.meta = PolicyMeta.from_json(props[META_KEY], source=src)
+        self.meta = meta_from_json(props[META_KEY], src)
 
     @classmethod
     def load(cls, path: str | Path) -> OnnxPolicy:

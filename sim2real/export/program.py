@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from hardware.atomic import atomic_write_bytes
-from sim2real.export.policy import Policy, PolicyError, PolicyMeta
+from sim2real.export.policy import Policy, PolicyError, PolicyMeta, meta_from_json
 
 Op = dict[str, Any]
 NPZ_FORMAT = 1
@@ -139,7 +139,7 @@ def load_npz(path: str | Path) -> tuple[list[Op], PolicyMeta]:
     try:
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["__program__"]))
-            meta = PolicyMeta.from_json(str(z["__meta__"]), source=src)
+            meta = meta_from_json(str(z["__meta__"]), src)
             arrays = {k: z[k] for k in z.files if not k.startswith("__")}
     except (OSError, ValueError, KeyError) as exc:
         raise PolicyError(f"policy {src!r} is not a sim2real .npz policy ({exc})") from None

@@ -13,10 +13,11 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from sim2real.runmeta import RunMeta
     from sim2real.train.algos import ALGOS, AlgoSpec, get_algo
     from sim2real.train.cache import cached_reach_policy
     from sim2real.train.config import TrainConfig, resolve_config
-    from sim2real.train.rundir import RunDir, RunInfo
+    from sim2real.train.rundir import RunDir
     from sim2real.train.runner import TrainResult, resume, train
 
 _LAZY: dict[str, str] = {
@@ -27,7 +28,7 @@ _LAZY: dict[str, str] = {
     "TrainConfig": "sim2real.train.config",
     "resolve_config": "sim2real.train.config",
     "RunDir": "sim2real.train.rundir",
-    "RunInfo": "sim2real.train.rundir",
+    "RunMeta": "sim2real.runmeta",
     "TrainResult": "sim2real.train.runner",
     "resume": "sim2real.train.runner",
     "train": "sim2real.train.runner",
@@ -44,7 +45,7 @@ __all__ = [
     "ALGOS",
     "AlgoSpec",
     "RunDir",
-    "RunInfo",
+    "RunMeta",
     "TrainConfig",
     "TrainResult",
     "cached_reach_policy",

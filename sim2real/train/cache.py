@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 from sim2real.train.rundir import RunDir
@@ -101,8 +102,7 @@ def cached_reach_policy(
             overrides=[*QUICK_REACH_OVERRIDES, "checkpoint_every=0"],
         )
         train(cfg)
-        config = RunDir(tmp).read_config()
-        config["run_dir_note"] = "trained by sim2real.train.cached_reach_policy"
-        RunDir(tmp).write_config(config)
+        meta = RunDir(tmp).read_meta()
+        RunDir(tmp).write_meta(replace(meta, note="trained by sim2real.train.cached_reach_policy"))
         os.replace(tmp, run)
     return run

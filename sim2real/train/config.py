@@ -12,7 +12,7 @@ from __future__ import annotations
 import copy
 import inspect
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import Field, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -23,29 +23,6 @@ from sim2real.errors import ConfigError, UnknownNameError
 PRESET_DIR = Path(__file__).with_name("presets")
 VEC_ENVS: tuple[str, ...] = ("dummy", "subproc")
 EVAL_SEED_BASE = 1_000_000_000  # evaluation seeds start here; training seeds stay below
-# Keys of a preset file (besides comments); each maps to a TrainConfig field.
-PRESET_KEYS: tuple[str, ...] = (
-    "algo",
-    "steps",
-    "n_envs",
-    "vec_env",
-    "normalize",
-    "normalize_reward",
-    "policy",
-    "hyperparams",
-    "env_kwargs",
-    "action_noise",
-    "her",
-    "discrete_magnitudes",
-    "checkpoint_every",
-    "log_interval",
-    "save_replay",
-    "action_rate_penalty",
-    "start_curriculum",
-    "max_wall_s",
-    "augment",
-    "privileged_critic",
-)
 # Keys of the ``augment`` preset mapping (pixel policies only, see augment.py).
 AUGMENT_KEYS: tuple[str, ...] = ("random_shift_px",)
 # SB3 constructor arguments the trainer sets itself.
@@ -198,38 +175,16 @@ class TrainConfig:
         return self.checkpoint_every or max(self.steps // 5, 1)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "env_id": self.env_id,
-            "algo": self.algo,
-            "run_dir": self.run_dir,
-            "dr": self.dr,
-            "steps": self.steps,
-            "seed": self.seed,
-            "n_envs": self.n_envs,
-            "vec_env": self.vec_env,
-            "her": self.her,
-            "normalize": self.normalize,
-            "normalize_reward": self.normalize_reward,
-            "policy": self.policy,
-            "hyperparams": copy.deepcopy(dict(self.hyperparams)),
-            "env_kwargs": dict(self.env_kwargs),
-            "her_kwargs": dict(self.her_kwargs),
-            "action_noise": None if self.action_noise is None else dict(self.action_noise),
-            "discrete_magnitudes": list(self.discrete_magnitudes),
-            "checkpoint_every": self.checkpoint_every,
-            "log_interval": self.log_interval,
-            "save_replay": self.save_replay,
-            "action_rate_penalty": self.action_rate_penalty,
-            "start_curriculum": None
-            if self.start_curriculum is None
-            else dict(self.start_curriculum),
-            "max_wall_s": self.max_wall_s,
-            "augment": None if self.augment is None else dict(self.augment),
-            "privileged_critic": self.privileged_critic,
-            "spec_path": self.spec_path,
-            "preset": self.preset,
-            "progress": self.progress,
-        }
+        """Every field, JSON-ready (mappings copied, tuples as lists)."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, Mapping):
+                value = copy.deepcopy(dict(value))
+            elif isinstance(value, tuple):
+                value = list(value)
+            out[f.name] = value
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> TrainConfig:
@@ -241,6 +196,17 @@ class TrainConfig:
         if "discrete_magnitudes" in kw:
             kw["discrete_magnitudes"] = tuple(kw["discrete_magnitudes"])
         return cls(**kw)
+
+
+# TrainConfig fields a preset file does not set: the command line and the trainer do. Every other
+# field is a preset key of the same name, except ``her``: in a preset it holds HER's options
+# (``her_kwargs``), on the command line it is the ``--her`` switch.
+NOT_PRESET_FIELDS: frozenset[str] = frozenset(
+    {"env_id", "run_dir", "dr", "seed", "her_kwargs", "spec_path", "preset", "progress"}
+)
+PRESET_KEYS: tuple[str, ...] = tuple(
+    f.name for f in fields(TrainConfig) if f.name not in NOT_PRESET_FIELDS
+)
 
 
 def _algos() -> Mapping[str, Any]:
@@ -496,38 +462,39 @@ def resolve_config(
     her_kwargs = data.get("her") or {}
     if not isinstance(her_kwargs, dict):
         raise ConfigError(f"preset {path.stem!r}: 'her' must be a mapping of HER options")
+    values = {
+        f.name: _preset_value(f, data[f.name])
+        for f in fields(TrainConfig)
+        if f.name in PRESET_KEYS and f.name not in ("algo", "her") and f.name in data
+    }
+    if max_wall_s is not None:
+        values["max_wall_s"] = max_wall_s
     return TrainConfig(
         env_id=env_id,
         algo=algo_name,
         run_dir=str(run_dir),
         dr=dr,
-        steps=data.get("steps", 100_000),
         seed=seed,
-        n_envs=data.get("n_envs", 1),
-        vec_env=str(data.get("vec_env", "dummy")),
         her=her,
-        normalize=_as_bool("normalize", data.get("normalize", True)),
-        normalize_reward=_as_bool("normalize_reward", data.get("normalize_reward", False)),
-        policy=data.get("policy"),
-        hyperparams=dict(data.get("hyperparams") or {}),
-        env_kwargs=dict(data.get("env_kwargs") or {}),
         her_kwargs=dict(her_kwargs),
-        action_noise=data.get("action_noise"),
-        discrete_magnitudes=_as_floats(
-            "discrete_magnitudes", data.get("discrete_magnitudes", (1.0, 0.2))
-        ),
-        checkpoint_every=data.get("checkpoint_every", 0),
-        log_interval=data.get("log_interval", 1),
-        save_replay=_as_bool("save_replay", data.get("save_replay", True)),
-        action_rate_penalty=data.get("action_rate_penalty", 0.0),
-        start_curriculum=data.get("start_curriculum"),
-        max_wall_s=data.get("max_wall_s", 0.0) if max_wall_s is None else max_wall_s,
-        augment=data.get("augment"),
-        privileged_critic=_as_bool("privileged_critic", data.get("privileged_critic", False)),
         spec_path=spec_path,
         preset=path.stem if path.parent == PRESET_DIR else str(path),
         progress=progress,
+        **values,
     )
+
+
+def _preset_value(f: Field[Any], value: Any) -> Any:
+    """A preset's value in the field's type: switches must be booleans, mappings may be empty."""
+    if isinstance(f.default, bool):
+        return _as_bool(f.name, value)
+    if f.default_factory is dict:
+        return dict(value or {})
+    if isinstance(f.default, tuple):
+        return _as_floats(f.name, value)
+    if isinstance(f.default, str):
+        return str(value)
+    return value
 
 
 def _as_bool(name: str, value: Any) -> bool:

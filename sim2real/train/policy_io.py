@@ -11,21 +11,21 @@ from pathlib import Path
 from typing import Any
 
 from sim2real.errors import RunDirError
-from sim2real.export.policy import PolicyMeta
 from sim2real.export.torch_policy import TorchPolicy
+from sim2real.runmeta import RunMeta
 from sim2real.train.rundir import RunDir
 
 INFERENCE_OBJECTS: dict[str, Any] = {"replay_buffer_class": None, "replay_buffer_kwargs": {}}
 
 
-def load_model(run_dir: str | Path) -> tuple[Any, Any, dict[str, Any]]:
-    """(SB3 model, VecNormalize or None, config) of a run; corrupt files are ``RunDirError``."""
+def load_model(run_dir: str | Path) -> tuple[Any, Any, RunMeta]:
+    """(SB3 model, VecNormalize or None, record) of a run; corrupt files are ``RunDirError``."""
     from sim2real.train.algos import get_algo
 
     rd = RunDir(run_dir)
-    config = rd.read_config()
+    meta = rd.read_meta()
     model_path, vn_path = rd.policy_files()
-    algo = get_algo(str(config["algo"]))
+    algo = get_algo(meta.algo)
     try:
         # Inference needs no replay buffer: HER's would demand an env just to be built.
         model = algo.cls.load(  # type: ignore[attr-defined]
@@ -48,11 +48,10 @@ def load_model(run_dir: str | Path) -> tuple[Any, Any, dict[str, Any]]:
             ) from None
         vn.training = False
         vn.norm_reward = False
-    return model, vn, config
+    return model, vn, meta
 
 
 def load_run_policy(run_dir: str | Path) -> TorchPolicy:
     """The run's deterministic policy with observation normalisation, as a ``Policy``."""
-    model, vn, config = load_model(run_dir)
-    meta = PolicyMeta.from_run_config(config, source=str(run_dir))
-    return TorchPolicy(model, vn, meta, config.get("action_table"))
+    model, vn, meta = load_model(run_dir)
+    return TorchPolicy(model, vn, meta, meta.action_table)

@@ -3,8 +3,9 @@
 Layout (every file written atomically)::
 
     RUN/
-      config.json          resolved config: env id, DR preset and ranges, spec + fingerprint,
-                           seed, training seeds, hyperparameters, obs layout, versions
+      config.json          the run's ``RunMeta`` (sim2real.runmeta): env id, task, DR preset
+                           and ranges, spec + fingerprint, seeds, hyperparameters, obs layout,
+                           action decoding, versions
       status.json          steps done, finished flag, wall time, latest checkpoint
       model.zip            final SB3 model (written when training finishes)
       vecnormalize.pkl     normalisation statistics (only when a VecNormalize was used: never
@@ -22,14 +23,15 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from sim2real.errors import RunDirError
+from sim2real.runmeta import MetaError, RunMeta
 from sim2real.train.atomic import atomic_write_json
 
-FORMAT_VERSION = 1
 CONFIG_FILE = "config.json"
 STATUS_FILE = "status.json"
 MODEL_FILE = "model.zip"
@@ -39,18 +41,6 @@ MONITOR_DIR = "monitor"
 TB_DIR = "tb"
 EPISODES_FILE = "episodes.csv"
 METRICS_FILE = "metrics.jsonl"
-REQUIRED_KEYS: tuple[str, ...] = (
-    "format",
-    "env_id",
-    "algo",
-    "dr",
-    "seed",
-    "steps",
-    "spec",
-    "spec_fingerprint",
-    "training_seeds",
-    "obs_layout",
-)
 _CKPT_RE = re.compile(r"^step_(\d+)\.zip$")
 
 
@@ -60,42 +50,6 @@ class Checkpoint:
     model: Path
     vecnormalize: Path | None
     replay: Path | None
-
-
-@dataclass(frozen=True)
-class RunInfo:
-    """The parts of ``config.json`` that evaluation, export and deployment rely on."""
-
-    path: Path
-    env_id: str
-    algo: str
-    dr: str
-    seed: int
-    steps: int
-    spec_fingerprint: str
-    spec: dict[str, Any]
-    training_seeds: tuple[int, ...]
-    obs_layout: tuple[dict[str, Any], ...]
-    raw: dict[str, Any] = field(repr=False)
-
-    @property
-    def env_kwargs(self) -> dict[str, Any]:
-        return dict(self.raw.get("env_kwargs", {}))
-
-    @property
-    def action_table(self) -> list[list[float]] | None:
-        """Rows of joint-delta actions when the policy is discrete (DQN), else None."""
-        table = self.raw.get("action_table")
-        return None if table is None else [list(map(float, row)) for row in table]
-
-    def check_spec(self, fingerprint: str) -> None:
-        """Refuse to drive an arm whose spec differs from the one the policy was trained on."""
-        if fingerprint != self.spec_fingerprint:
-            raise RunDirError(
-                f"run {self.path} was trained for arm spec {self.spec.get('name', '?')!r} "
-                f"(fingerprint {self.spec_fingerprint}); this arm's spec has fingerprint "
-                f"{fingerprint}"
-            )
 
 
 class RunDir:
@@ -158,11 +112,12 @@ class RunDir:
     def is_empty(self) -> bool:
         return not self.path.exists() or not any(self.path.iterdir())
 
-    def write_config(self, config: dict[str, Any]) -> None:
-        atomic_write_json(self.config_path, config)
+    def write_meta(self, meta: RunMeta) -> None:
+        atomic_write_json(self.config_path, meta.to_dict())
 
-    def read_config(self) -> dict[str, Any]:
-        """The resolved config; a missing or corrupt file is a one-line ``RunDirError``."""
+    def read_meta(self) -> RunMeta:
+        """The run's typed record (any readable format); a missing, corrupt or unreadable
+        ``config.json`` is a one-line ``RunDirError`` (naming the format when that is why)."""
         if not self.path.is_dir():
             raise RunDirError(f"run dir {str(self.path)!r} does not exist")
         if not self.config_path.is_file():
@@ -174,35 +129,22 @@ class RunDir:
             raise RunDirError(
                 f"run dir {str(self.path)!r}: corrupt {CONFIG_FILE} ({msg})"
             ) from None
-        if not isinstance(data, dict):
-            raise RunDirError(f"run dir {str(self.path)!r}: {CONFIG_FILE} is not a mapping")
-        missing = [k for k in REQUIRED_KEYS if k not in data]
-        if missing:
-            raise RunDirError(f"run dir {str(self.path)!r}: {CONFIG_FILE} lacks {missing}")
-        if data["format"] != FORMAT_VERSION:
-            raise RunDirError(
-                f"run dir {str(self.path)!r}: format {data['format']!r} is not {FORMAT_VERSION}"
-            )
-        return data
-
-    def info(self) -> RunInfo:
-        c = self.read_config()
         try:
-            return RunInfo(
-                path=self.path,
-                env_id=str(c["env_id"]),
-                algo=str(c["algo"]),
-                dr=str(c["dr"]),
-                seed=int(c["seed"]),
-                steps=int(c["steps"]),
-                spec_fingerprint=str(c["spec_fingerprint"]),
-                spec=dict(c["spec"]),
-                training_seeds=tuple(int(s) for s in c["training_seeds"]),
-                obs_layout=tuple(dict(f) for f in c["obs_layout"]),
-                raw=c,
-            )
-        except (TypeError, ValueError) as exc:
-            raise RunDirError(f"run dir {str(self.path)!r}: bad {CONFIG_FILE} ({exc})") from None
+            return RunMeta.from_dict(data, source=str(self.path))
+        except MetaError as exc:
+            raise RunDirError(str(exc).replace("metadata of", "run dir", 1)) from None
+
+    def write_config(self, config: Mapping[str, Any]) -> None:
+        """A record given as its JSON mapping: checked by ``RunMeta`` before it is written."""
+        try:
+            meta = RunMeta.from_dict(config, source=str(self.path))
+        except MetaError as exc:
+            raise RunDirError(str(exc).replace("metadata of", "run dir", 1)) from None
+        self.write_meta(meta)
+
+    def read_config(self) -> dict[str, Any]:
+        """``read_meta()`` as its JSON mapping (the current format, whatever the file's)."""
+        return self.read_meta().to_dict()
 
     def read_status(self) -> dict[str, Any]:
         if not self.status_path.is_file():
@@ -250,7 +192,7 @@ class RunDir:
         Runs without observation normalisation (pixels) have no vecnormalize file; a run whose
         config says it normalised observations must have one, or its policy would see raw inputs.
         """
-        config = self.read_config()
+        meta = self.read_meta()
         if self.model_path.is_file():
             model, vn = self.model_path, self.vecnormalize_path
             found = vn if vn.is_file() else None
@@ -261,8 +203,8 @@ class RunDir:
                     f"run dir {str(self.path)!r} has neither {MODEL_FILE} nor a checkpoint"
                 )
             model, found = ckpt.model, ckpt.vecnormalize
-        norm = config.get("vecnormalize")  # absent in older configs: nothing to check
-        if found is None and isinstance(norm, dict) and norm.get("norm_obs"):
+        norm = meta.vecnormalize  # None in older configs: nothing to check
+        if found is None and norm is not None and norm.get("norm_obs"):
             raise RunDirError(
                 f"run dir {str(self.path)!r}: {model.name} was trained on normalised "
                 f"observations but its {VECNORM_FILE} is missing"

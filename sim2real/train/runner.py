@@ -14,7 +14,7 @@ import pickle
 import platform
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -31,6 +31,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from hardware.spec import ArmSpec, load_spec
 from sim2real.errors import ConfigError, RunDirError
 from sim2real.randomization import DRConfig, load_preset
+from sim2real.runmeta import ObsField, RunMeta
 from sim2real.train.algos import ACTIVATIONS, AlgoSpec, get_algo
 from sim2real.train.asymmetric import AsymmetricActorCriticPolicy
 from sim2real.train.atomic import atomic_write
@@ -51,7 +52,7 @@ from sim2real.train.config import (
 )
 from sim2real.train.extractors import resolve_policy_kwargs
 from sim2real.train.factory import build_vec_env, obs_normalization, policy_for, transpose_images
-from sim2real.train.rundir import FORMAT_VERSION, Checkpoint, RunDir
+from sim2real.train.rundir import Checkpoint, RunDir
 from sim2real.train.wrappers import delta_action_table
 
 VERSION_PACKAGES: tuple[str, ...] = (
@@ -123,29 +124,30 @@ def _env_kwargs(cfg: TrainConfig, dr: DRConfig, spec: ArmSpec) -> dict[str, Any]
 
 
 def _obs_description(env: gym.Env[Any, Any]) -> dict[str, Any]:
-    """The observation contract the deploy loop must reproduce."""
+    """The observation contract and action decoding the deploy loop must reproduce (``RunMeta``
+    fields)."""
     base = env.unwrapped
-    layout = [
-        {"name": f.name, "start": f.start, "stop": f.stop, "unit": f.unit, "doc": f.doc}
+    layout = tuple(
+        ObsField(f.name, f.start, f.stop, f.unit, f.doc)
         for f in base.builder.layout()  # type: ignore[attr-defined]
-    ]
+    )
     space = env.observation_space
     actions = base.action_space
     discrete = isinstance(actions, gym.spaces.Discrete)
     keys = sizes = None
-    shape = list(space.shape or ())
+    shape = tuple(int(n) for n in space.shape or ())
     if isinstance(space, gym.spaces.Dict):  # policies see the keys flattened in sorted order
-        keys = list(space.spaces)
-        sizes = [int(np.prod(space.spaces[k].shape or ())) for k in keys]
-        shape = [sum(sizes)]
+        keys = tuple(space.spaces)
+        sizes = tuple(int(np.prod(space.spaces[k].shape or ())) for k in keys)
+        shape = (sum(sizes),)
+    task = getattr(base, "task", None)
     return {
+        "task": str(getattr(task, "name", "")),
         "obs_layout": layout,
-        "obs_mode": base.obs_mode,  # type: ignore[attr-defined]
+        "obs_mode": str(base.obs_mode),  # type: ignore[attr-defined]
         "obs_shape": shape,
         "obs_keys": keys,
         "obs_key_sizes": sizes,
-        "observation_space": str(space),
-        "action_space": str(actions),
         # A Discrete env's policy outputs one index; a Box env's policy one value per dimension.
         "action_dim": 1 if discrete else int(np.prod(actions.shape or (1,))),
         "n_actions": int(actions.n) if discrete else None,  # type: ignore[attr-defined]
@@ -357,18 +359,18 @@ def train(cfg: TrainConfig) -> TrainResult:
     dr = load_preset(cfg.dr)
     rd.path.mkdir(parents=True, exist_ok=True)
     try:
-        session, model, config = _setup(cfg, rd, spec, dr)
+        session, model, meta = _setup(cfg, rd, spec, dr)
     except BaseException:  # nothing half-made stays behind: the folder was empty before
         shutil.rmtree(rd.path, ignore_errors=True)
         raise
-    rd.write_config(config)
+    rd.write_meta(meta)
     return session.learn(model)
 
 
 def _setup(
     cfg: TrainConfig, rd: RunDir, spec: ArmSpec, dr: DRConfig
-) -> tuple[_Session, BaseAlgorithm, dict[str, Any]]:
-    """Envs, model and the resolved config of a new run."""
+) -> tuple[_Session, BaseAlgorithm, RunMeta]:
+    """Envs, model and the typed record of a new run."""
     session = _Session(cfg, rd, spec, dr)
     venv = session.vec_env(None)
     algo = session.algo
@@ -393,38 +395,39 @@ def _setup(
         raise ConfigError(f"{cfg.algo} rejected the configuration: {msg}") from None
     venv.seed(session.seeds[0])  # model seeding reseeded the envs; restore the recorded seeds
     vn = venv if isinstance(venv, VecNormalize) else None
-    config = {
-        "format": FORMAT_VERSION,
-        "env_id": cfg.env_id,
-        "algo": cfg.algo,
-        "dr": dr.name,
-        "dr_source": cfg.dr,
-        "dr_ranges": dr.to_dict(),
-        "seed": cfg.seed,
-        "steps": cfg.steps,
-        "spec": spec.to_dict(),
-        "spec_name": spec.name,
-        "spec_fingerprint": spec.fingerprint(),
-        "training_seeds": session.seeds,
-        "policy": policy,
-        "normalize": cfg.normalize,
+    table = session.table
+    meta = RunMeta(
+        env_id=cfg.env_id,
+        algo=cfg.algo,
+        policy=policy,
+        dr=dr.name,
+        dr_source=cfg.dr,
+        dr_ranges=dr.to_dict(),
+        seed=cfg.seed,
+        steps=cfg.steps,
+        spec=spec.to_dict(),
+        spec_name=spec.name,
+        spec_fingerprint=spec.fingerprint(),
+        training_seeds=tuple(session.seeds),
+        normalize=cfg.normalize,
         # What the VecNormalize really does (None: no wrapper, no vecnormalize.pkl): image
         # observations are never normalised, whatever ``normalize`` says.
-        "vecnormalize": None
+        vecnormalize=None
         if vn is None
         else {
             "norm_obs": vn.norm_obs,
             "norm_obs_keys": vn.norm_obs_keys,
             "norm_reward": vn.norm_reward,
         },
-        "action_table": None if session.table is None else session.table.tolist(),
-        "env_kwargs": dict(cfg.env_kwargs),
-        "train": cfg.to_dict(),
-        "versions": versions(),
-        "created_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        action_table=None if table is None else tuple(tuple(map(float, r)) for r in table),
+        env_kwargs=dict(cfg.env_kwargs),
+        train=cfg.to_dict(),
+        versions=versions(),
+        created_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        source=str(rd.path),
         **session.obs_desc,
-    }
-    return session, model, config
+    )
+    return session, model, meta
 
 
 def resume(
@@ -436,11 +439,11 @@ def resume(
     """Continue a run from its newest checkpoint; ``steps`` may raise the total budget."""
     th.set_num_threads(1)
     rd = RunDir(run_dir)
-    config = rd.read_config()
+    meta = rd.read_meta()
     ckpt = rd.latest_checkpoint()
     if ckpt is None:
         raise RunDirError(f"run dir {str(run_dir)!r} has no checkpoint to resume from")
-    train_dict = dict(config.get("train", {}))
+    train_dict = dict(meta.train)
     if steps is not None:
         if steps < ckpt.steps:
             raise ConfigError(
@@ -454,11 +457,11 @@ def resume(
     train_dict["run_dir"] = str(run_dir)
     try:
         cfg = TrainConfig.from_dict(train_dict)
-        spec = ArmSpec.from_dict(config["spec"], source=f"{run_dir}/config.json spec")
-        dr = DRConfig.from_dict(str(config["dr"]), config["dr_ranges"])
+        spec = ArmSpec.from_dict(dict(meta.spec), source=f"{run_dir}/config.json spec")
+        dr = DRConfig.from_dict(meta.dr, meta.dr_ranges)
     except (KeyError, TypeError) as exc:
         raise RunDirError(f"run dir {str(run_dir)!r}: bad config.json ({exc})") from None
-    if spec.fingerprint() != config["spec_fingerprint"]:
+    if spec.fingerprint() != meta.spec_fingerprint:
         raise RunDirError(f"run dir {str(run_dir)!r}: spec does not match its fingerprint")
     session = _Session(cfg, rd, spec, dr)
     if ckpt.steps >= cfg.steps and rd.read_status().get("finished"):
@@ -479,8 +482,6 @@ def resume(
     if ckpt.replay is not None and hasattr(model, "load_replay_buffer"):
         model.load_replay_buffer(str(ckpt.replay))
     venv.seed(session.seeds[0])
-    config["training_seeds"] = sorted(set(config["training_seeds"]) | set(session.seeds))
-    config["steps"] = cfg.steps
-    config["train"] = cfg.to_dict()
-    rd.write_config(config)
+    seeds = tuple(sorted(set(meta.training_seeds) | set(session.seeds)))
+    rd.write_meta(replace(meta, training_seeds=seeds, steps=cfg.steps, train=cfg.to_dict()))
     return session.learn(model)

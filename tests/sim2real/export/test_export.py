@@ -72,9 +72,8 @@ def test_export_matches_torch_within_1e5_on_1000_observations(
     assert np.abs(a).max() <= 1.0 and a.std() > 0  # a real, non-constant policy
     assert exported.meta.spec_fingerprint == load_spec().fingerprint()
     assert exported.meta.env_id == torch_policy.meta.env_id
-    assert [f["name"] for f in exported.meta.obs_layout] == [
-        f["name"] for f in torch_policy.meta.obs_layout
-    ]
+    assert exported.meta.obs_layout == torch_policy.meta.obs_layout
+    assert exported.meta.exported_from == str(runs[algo]) and exported.meta.export_format == fmt
 
 
 def test_normalisation_is_folded_in(runs: dict[str, Path], tmp_path: Path) -> None:
@@ -120,7 +119,7 @@ def test_policy_interface_rejects_bad_input(runs: dict[str, Path], tmp_path: Pat
         policy(np.full(policy.meta.flat_obs_dim, np.nan, dtype=np.float32))
     with pytest.raises(PolicyError, match="trained for arm spec"):
         policy.meta.check_spec("0000000000000000")
-    layout = [(str(f["name"]), int(f["stop"]) - int(f["start"])) for f in policy.meta.obs_layout]
+    layout = [(f.name, f.size) for f in policy.meta.obs_layout]
     policy.meta.check_layout(layout)  # its own layout passes
     swapped = [layout[1], layout[0], *layout[2:]]  # same size, other meaning: refused
     with pytest.raises(PolicyError, match="trained on observation layout"):
