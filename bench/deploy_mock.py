@@ -7,6 +7,9 @@ Per policy (a shipped name or a run dir), JSON lines:
 * ``sim_vs_env_success`` and ``mock_vs_sim_success`` ratios (targets ≥ 0.9 each);
 * with ``--timing``: a mock run at the spec's own watchdog while a busy-loop process keeps a
   core busy: loop rate (target 20 Hz), period jitter p99 (target ≤ 5 ms), watchdog trips (0).
+  The mock arm (emulator + physics) runs in its own process at ``--mock-nice``; the loop's
+  thread at SCHED_FIFO unless ``--no-realtime``; ``--switch-interval`` sets the host's GIL
+  switch interval. Each timing line names these settings (``variant``), to compare them.
 
     .venv/bin/python bench/deploy_mock.py pick-ppo trace-ppo --episodes 100
     .venv/bin/python bench/deploy_mock.py reach-ppo pick-ppo --timing --episodes 20 --backends ''
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import os
 import platform
@@ -70,6 +74,23 @@ def main() -> None:
         help="success runs only, on a machine shared with other jobs: a longer mock watchdog "
         "(the timing run always keeps the spec's)",
     )  # fmt: skip
+    parser.add_argument(
+        "--no-realtime",
+        action="store_true",
+        help="timing run: the loop's thread at normal priority",
+    )
+    parser.add_argument(
+        "--mock-nice",
+        type=int,
+        default=None,
+        help="timing run: the mock arm process's nice (default: DeployOptions')",
+    )
+    parser.add_argument(
+        "--switch-interval",
+        type=float,
+        default=None,
+        help="timing run: the host's sys.setswitchinterval in s (default 0.005)",
+    )
     args = parser.parse_args()
     backends = [b for b in args.backends.split(",") if b]
     spec = load_spec()
@@ -104,20 +125,32 @@ def main() -> None:
             emit("mock_vs_sim_success", round(ratio, 3), "ratio", policy=ref, target=0.9,
                  passed=ratio >= 0.9)  # fmt: skip
         if args.timing:
-            with busy_core():
-                res = deploy(ref, spec, DeployOptions(backend="mock"),
-                             LoopConfig(episodes=args.timing_episodes))  # fmt: skip
+            timing_opts = DeployOptions(backend="mock", realtime=not args.no_realtime)
+            if args.mock_nice is not None:
+                timing_opts = dataclasses.replace(timing_opts, mock_nice=args.mock_nice)
+            variant = {"realtime": timing_opts.realtime, "mock_nice": timing_opts.mock_nice,
+                       "switch_interval_s": args.switch_interval or sys.getswitchinterval()}  # fmt: skip
+            before = sys.getswitchinterval()
+            if args.switch_interval is not None:
+                sys.setswitchinterval(args.switch_interval)
+            try:
+                with busy_core():
+                    res = deploy(ref, spec, timing_opts, LoopConfig(episodes=args.timing_episodes))
+            finally:
+                sys.setswitchinterval(before)
             s = res.summary()
             jitter = s["period_jitter_ms"]
-            emit("timing_busy_core_loop_hz", round(s["loop_hz"], 3), "Hz", policy=ref, target=20)
+            emit("timing_busy_core_loop_hz", round(s["loop_hz"], 3), "Hz", policy=ref, target=20,
+                 variant=variant, machine=machine, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
             emit("timing_busy_core_jitter_p99_ms", round(jitter["p99"], 3), "ms", policy=ref,
                  p50=round(jitter["p50"], 3), max=round(jitter["max"], 3), target=5.0,
-                 passed=jitter["p99"] <= 5.0)  # fmt: skip
+                 passed=jitter["p99"] <= 5.0, variant=variant)  # fmt: skip
             emit("timing_busy_core_watchdog_trips", s["watchdog_trips"], "count", policy=ref,
-                 target=0, overruns=s["overruns"], stopped_early=s["stopped_early"])  # fmt: skip
+                 target=0, overruns=s["overruns"], stopped_early=s["stopped_early"],
+                 variant=variant)  # fmt: skip
             emit("timing_busy_core_sections_ms",
                  {k: {q: round(v, 3) for q, v in d.items()} for k, d in s["sections_ms"].items()},
-                 "ms", policy=ref)  # fmt: skip
+                 "ms", policy=ref, success_rate=s["success_rate"], variant=variant)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """Virtual cameras as a free-running device: the mock world's two cameras render in their own
 process, as USB cameras capture outside the host's control loop.
 
-The physics thread publishes the scene state (``qpos``, mocap poses, the time) into shared memory;
+The mock arm's physics (in its own process, ``mock_arm``) publishes the scene state (``qpos``,
+mocap poses, the time) into shared memory through a ``SceneStatePublisher``;
 the render process snapshots it at the camera rate, renders both cameras and publishes the pair
 with the snapshot's time as its capture time. The control loop reads the newest pair without
 waiting. Rendering on CPU (llvmpipe) costs tens of milliseconds a pair; in its own process, at a
@@ -49,6 +50,59 @@ class RenderConfig:
     timeout_s: float = 1.0
 
 
+def attach_block(name: str) -> shared_memory.SharedMemory:
+    """Another process's shared block, which this process must not unlink when it exits (the
+    creator owns it; Python's resource tracker would otherwise remove it under its owner)."""
+    from multiprocessing import resource_tracker
+
+    shm = shared_memory.SharedMemory(name=name)
+    resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+    return shm
+
+
+def _write_state(
+    st: np.ndarray,
+    nq: int,
+    nmocap: int,
+    t_s: float,
+    qpos: np.ndarray,
+    mocap_pos: np.ndarray,
+    mocap_quat: np.ndarray,
+) -> None:
+    """One scene state under the block's sequence lock (a few hundred bytes)."""
+    st[0] += 1
+    st[1] = t_s
+    o = _STATE_HEADER
+    st[o : o + nq] = qpos
+    st[o + nq : o + nq + 3 * nmocap] = np.ravel(mocap_pos)
+    st[o + nq + 3 * nmocap :] = np.ravel(mocap_quat)
+    st[0] += 1
+
+
+class SceneStatePublisher:
+    """The writer's side of the state block, in the process that runs the physics (the mock
+    arm's); the block belongs to the ``RenderedStereoCameras`` that created it."""
+
+    def __init__(self, name: str, nq: int, nmocap: int) -> None:
+        self._nq, self._nmocap = nq, nmocap
+        self._shm: shared_memory.SharedMemory | None = attach_block(name)
+        self._state: np.ndarray = np.ndarray(
+            (_STATE_HEADER + nq + 7 * nmocap,), np.float64, self._shm.buf
+        )
+
+    def publish(
+        self, t_s: float, qpos: np.ndarray, mocap_pos: np.ndarray, mocap_quat: np.ndarray
+    ) -> None:
+        if self._shm is not None:
+            _write_state(self._state, self._nq, self._nmocap, t_s, qpos, mocap_pos, mocap_quat)
+
+    def close(self) -> None:
+        if self._shm is not None:
+            del self._state
+            self._shm.close()
+            self._shm = None
+
+
 class _Shared:
     """The two shared blocks, as numpy views."""
 
@@ -70,11 +124,7 @@ class _Shared:
     @classmethod
     def attach(cls, names: tuple[str, str], n_state: int, h: int, w: int) -> _Shared:
         """The child's view of the parent's blocks."""
-        from multiprocessing import resource_tracker
-
-        blocks = [shared_memory.SharedMemory(name=n) for n in names]
-        for shm in blocks:  # the parent owns the blocks: this process must not unlink them
-            resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+        blocks = [attach_block(n) for n in names]
         return cls(blocks[0], blocks[1], n_state, h, w)
 
     def release(self) -> None:
@@ -199,18 +249,16 @@ class RenderedStereoCameras:
     def publish(
         self, t_s: float, qpos: np.ndarray, mocap_pos: np.ndarray, mocap_quat: np.ndarray
     ) -> None:
-        """Called by the physics thread after each step (cheap: a few hundred bytes)."""
+        """A scene state from this process (the mock arm's physics uses a
+        ``SceneStatePublisher`` on ``state_block`` from its own)."""
         if self._state_shm is None:
             return  # closed
-        st = self._shared.state
-        nq, nm = self._nq, self._nmocap
-        st[0] += 1
-        st[1] = t_s
-        o = _STATE_HEADER
-        st[o : o + nq] = qpos
-        st[o + nq : o + nq + 3 * nm] = np.ravel(mocap_pos)
-        st[o + nq + 3 * nm :] = np.ravel(mocap_quat)
-        st[0] += 1
+        _write_state(self._shared.state, self._nq, self._nmocap, t_s, qpos, mocap_pos, mocap_quat)
+
+    @property
+    def state_block(self) -> str:
+        """The state block's name, for a ``SceneStatePublisher`` in another process."""
+        return str(self._state_shm.name)
 
     def latest(self) -> FramePair | None:
         if self._proc is not None and self._proc.poll() is not None:

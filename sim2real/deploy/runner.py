@@ -18,6 +18,7 @@ from hardware.spec import ArmSpec
 from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig
 from sim2real.deploy.perception import MarkerLayout, OraclePerception, Perception, StereoPerception
 from sim2real.deploy.policy_io import PolicyIO, policy_io
+from sim2real.deploy.realtime import control_thread_priority
 from sim2real.deploy.worlds import World
 from sim2real.errors import ConfigError, UnknownNameError
 
@@ -37,6 +38,9 @@ class DeployOptions:
     camera_timeout_s: float | None = None  # None: 1 s for real cameras, 5 s for the mock's
     camera_fps: float = 30.0
     camera_nice: int = 10  # mock: the render process yields to the control loop
+    mock_nice: int = 5  # mock: the arm's process (emulator + physics) yields to it too
+    # the control loop's thread at real-time priority (SCHED_FIFO) where the OS allows it
+    realtime: bool = True
     camera_fails_after_s: float | None = None  # mock fault injection: the cameras hang
     plant: str | Path | None = None  # mock: the arm as it is (a plant file or preset)
     firmware: str = "python"  # mock: the Python firmware model or the AVR binary in simavr
@@ -59,6 +63,8 @@ class DeployOptions:
             raise ConfigError(f"--firmware is for --backend mock, not {self.backend!r}")
         if self.watchdog_s is not None and self.backend == "serial":
             raise ConfigError("--watchdog-s is for --backend mock|sim: a real arm keeps its spec's")
+        if not 0 <= self.mock_nice <= 19:
+            raise ConfigError(f"mock_nice {self.mock_nice} not in [0, 19] (a niceness)")
         if not 1.0 <= self.camera_fps <= 240.0:
             raise ConfigError(f"camera_fps {self.camera_fps} not in [1, 240]")
 
@@ -96,29 +102,46 @@ def _scene(io: PolicyIO) -> str:
 def _build_mock(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
+    """The mock arm in its own process (emulator on a pty + MuJoCo physics), the cameras
+    rendering in theirs; the host holds only the serial port, the channel and perception."""
+    import mujoco
+
     from hardware.emulator.server import EmulatorConfig
     from hardware.plant import Plant, load_plant
     from hardware.serial_arm import SerialArm
+    from sim2real.deploy.mock_arm import MockArmJob, MockArmProcess
+    from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
     from sim2real.deploy.virtual_cameras import stereo_rig_of
     from sim2real.deploy.worlds import MockWorld
-    from sim2real.model import RigSpec
+    from sim2real.model import RigSpec, build_mjcf
 
     plant = Plant.nominal(spec) if opts.plant is None else load_plant(opts.plant)
     plant.check_against(spec)
     if opts.watchdog_s is not None:  # the device's watchdog lives in the plant's firmware
         safety = dataclasses.replace(plant.spec.safety, watchdog_timeout_s=opts.watchdog_s)
         plant = dataclasses.replace(plant, spec=dataclasses.replace(plant.spec, safety=safety))
-    config = EmulatorConfig(**opts.emulator_options)
-    emulator = _emulator(plant, opts, config)
-    stack.enter_context(emulator)
-    rig = RigSpec()
+    _check_firmware(opts)
+    rig, scene = RigSpec(), _scene(io)
+    xml = build_mjcf(plant.spec, scene, rig, markers=True)
+    model = mujoco.MjModel.from_xml_string(xml)
+    cam = rig.cameras[0]
     # Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
     # arrive late rather than never, so its timeout is longer than a USB camera's.
-    world = MockWorld(plant.spec, _scene(io), emulator, rig, camera_fps=opts.camera_fps,
-                      camera_timeout_s=opts.camera_timeout_s or 5.0,
-                      camera_nice=opts.camera_nice)  # fmt: skip
-    stack.callback(world.close)
-    world.start()
+    cameras = RenderedStereoCameras(
+        RenderConfig(xml=xml, width_px=cam.width_px, height_px=cam.height_px,
+                     fps=opts.camera_fps, nice=opts.camera_nice,
+                     timeout_s=opts.camera_timeout_s or 5.0),
+        model.nq, model.nmocap,
+    )  # fmt: skip
+    stack.callback(cameras.close)
+    cameras.start()
+    job = MockArmJob(
+        plant=plant, scene=scene, protocol=opts.protocol, firmware=opts.firmware,
+        emulator_config=EmulatorConfig(**opts.emulator_options), rig=rig,
+        state_block=cameras.state_block, nice=opts.mock_nice,
+    )  # fmt: skip
+    arm_process = stack.enter_context(MockArmProcess(job))
+    world = MockWorld(arm_process, cameras)
     stereo, base_T_left = stereo_rig_of(rig)
     if opts.stereo_calibration is not None:  # the user's calibration of the rendered rig
         from calibration.triangulate import StereoRig
@@ -127,38 +150,33 @@ def _build_mock(
     if opts.base_T_left is not None:
         base_T_left = opts.base_T_left
     relaxed: dict[str, Any] = {}
-    if opts.watchdog_s is not None:  # a loaded machine: the emulator thread may answer late too
+    if opts.watchdog_s is not None:  # a loaded machine: the arm's process may answer late too
         relaxed = {"host_watchdog_s": opts.watchdog_s, "timeout_s": max(0.05, opts.watchdog_s / 8)}
-    # a host-side joint calibration (adapt's fitted zero offsets) acts on the mock as on a bus
-    arm = SerialArm(
-        spec, emulator.port, opts.protocol, calibration=opts.joint_calibration, **relaxed
-    )
+    arm = SerialArm(spec, arm_process.port, opts.protocol, **relaxed)
     stack.enter_context(arm)
-    arm.emulator = emulator  # type: ignore[attr-defined]  # tests reach the mock through the arm
+    arm.emulator = arm_process  # type: ignore[attr-defined]  # tests reach the mock through the arm
     arm.world = world  # type: ignore[attr-defined]
-    perception = _stereo_perception(world.cameras, stereo, base_T_left, spec, io, opts, stack)
+    perception = _stereo_perception(cameras, stereo, base_T_left, spec, io, opts, stack)
     if opts.camera_fails_after_s is not None:  # fault injection: after the first frames
         import threading
 
-        timer = threading.Timer(opts.camera_fails_after_s, world.cameras.freeze)
+        timer = threading.Timer(opts.camera_fails_after_s, cameras.freeze)
         timer.daemon = True
         timer.start()
         stack.callback(timer.cancel)
     return arm, perception, world
 
 
-def _emulator(plant: Any, opts: DeployOptions, config: Any) -> Any:
+def _check_firmware(opts: DeployOptions) -> None:
+    """Refused in the host, before the arm's process starts."""
     if opts.firmware == "python":
-        return plant.emulator(opts.protocol, config)
+        return
     from hardware.emulator import FIRMWARES
 
     if opts.firmware not in FIRMWARES:
         raise UnknownNameError("firmware", opts.firmware, FIRMWARES)
     if opts.protocol != "s2r":
         raise ConfigError(f"--firmware {opts.firmware} speaks s2r, not {opts.protocol!r}")
-    return FIRMWARES[opts.firmware](
-        plant.spec, opts.protocol, plant.emulator_config(config), mounting=plant.mounting("s2r")
-    )
 
 
 def _stereo_perception(
@@ -290,7 +308,8 @@ def run_policy(
             on_episode=None if recorder is None else recorder.on_episode,
         )
         try:
-            result = loop.run()
+            with control_thread_priority(opts.realtime):  # helpers started before: not theirs
+                result = loop.run()
         except BaseException:
             if recorder is not None:  # nothing half-written: the episodes so far are dropped
                 recorder.abort()

@@ -1,13 +1,15 @@
 """Worlds: what is out there besides the arm, who places it, and who knows the truth.
 
 * ``SimWorld``: the ``SimArm``'s own MuJoCo scene; truth from its state.
-* ``MockWorld``: the mock arm's physics. The emulator decides where the servos are (its true,
-  physical angles after dynamics, faults and latency); MuJoCo decides what the world does about
-  it: the arm is driven kinematically from those angles, the gripper's fingers by a
-  force-limited actuator, and contacts, grasps and a falling cube are simulated. A cube between
-  the fingers stalls the emulated gripper servo where it touches, so the host reads what a real
-  servo's potentiometer would. The scene state is published to free-running virtual cameras
-  (``render_process``), which render it outside the control loop.
+* ``MockPhysics``: the mock arm's physics, in the mock arm's own process beside the emulator.
+  The emulator decides where the servos are (its true, physical angles after dynamics, faults
+  and latency); MuJoCo decides what the world does about it: the arm is driven kinematically
+  from those angles, the gripper's fingers by a force-limited actuator, and contacts, grasps and
+  a falling cube are simulated. A cube between the fingers stalls the emulated gripper servo
+  where it touches, so the host reads what a real servo's potentiometer would. The scene state
+  is published to free-running virtual cameras (``render_process``), which render it outside
+  the control loop.
+* ``MockWorld``: the host's side of it (place, clear and the truth over the process boundary).
 * ``CameraWorld``: a real arm. Nobody knows the truth; a person places the objects.
 
 Placement and truth go through ``SceneObjects``, one name → MuJoCo mapping for every task.
@@ -18,7 +20,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Protocol
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
 
 import mujoco
 import numpy as np
@@ -27,6 +30,10 @@ from hardware.spec import ArmSpec
 from sim2real import model as names
 from sim2real.envs.contract import View
 from sim2real.model import ArmTwin, RigSpec, build_mjcf
+
+if TYPE_CHECKING:
+    from sim2real.deploy.mock_arm import MockArmProcess
+    from sim2real.deploy.render_process import RenderedStereoCameras
 
 log = logging.getLogger(__name__)
 
@@ -178,11 +185,16 @@ class SimWorld:
         """The arm owns the scene."""
 
 
-class MockWorld:
-    """The mock arm's world: emulator-driven MuJoCo physics in a real-time thread, rendered by
-    free-running virtual cameras in their own process."""
+Truth = tuple[np.ndarray, dict[str, np.ndarray], bool | None]  # tool, objects, grasped
+StateSink = Callable[[float, mujoco.MjData, Truth], None]
 
-    places_objects = True
+
+class MockPhysics:
+    """The mock arm's world: emulator-driven MuJoCo physics in a real-time thread. It runs in
+    the mock arm's own process (``mock_arm``), beside the emulator, never in the host's: after
+    each step it hands the scene state and the truth to ``sink`` (shared memory for the
+    free-running cameras and for ``MockWorld.view``)."""
+
     STEP_CATCH_UP_MAX = 20  # physics steps per wake-up at most (a stalled thread jumps ahead)
     KINEMATIC_ARMATURE = 1e4  # kg·m²: the emulator's servos, not the contacts, move the arm
 
@@ -192,35 +204,21 @@ class MockWorld:
         scene: str,
         emulator: object,
         rig: RigSpec | None = None,
-        camera_fps: float = 30.0,
-        camera_timeout_s: float = 1.0,
-        camera_nice: int = 10,
+        sink: StateSink | None = None,
+        on_error: Callable[[BaseException], None] | None = None,
     ) -> None:
         """``spec`` is the arm as it really is (a plant's), not the policy's belief."""
-        from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
-
         self.spec = spec
         self.rig = rig or RigSpec()
         self.emulator = emulator
-        xml = build_mjcf(spec, scene, self.rig, markers=True)
-        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.xml = build_mjcf(spec, scene, self.rig, markers=True)
+        self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         self.twin = ArmTwin(self.model, spec)
         self.objects = SceneObjects(self.model, self.rig)
         self.lock = threading.Lock()
-        cam = self.rig.cameras[0]
-        self.cameras = RenderedStereoCameras(
-            RenderConfig(
-                xml=xml,
-                width_px=cam.width_px,
-                height_px=cam.height_px,
-                fps=camera_fps,
-                nice=camera_nice,
-                timeout_s=camera_timeout_s,
-            ),
-            self.model.nq,
-            self.model.nmocap,
-        )
+        self.sink = sink
+        self.on_error = on_error
         n = spec.n_joints
         self._n = n
         self._arm_dofs = np.append(self.twin.dofadr, self.model.joint(names.WRIST_JOINT).dofadr[0])
@@ -228,6 +226,7 @@ class MockWorld:
         self._running = False
         self._thread: threading.Thread | None = None
         self._blocked = False
+        self._published_t = -np.inf
         self.steps = 0
         self.error: BaseException | None = None
         self._make_arm_kinematic()
@@ -239,7 +238,6 @@ class MockWorld:
 
     # ---- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
-        self.cameras.start()
         self._publish(time.monotonic())
         self._running = True
         self._thread = threading.Thread(target=self._run, name="mock-physics", daemon=True)
@@ -250,7 +248,6 @@ class MockWorld:
         if self._thread is not None:
             self._thread.join(timeout=5.0)
             self._thread = None
-        self.cameras.close()
 
     # ---- physics ----------------------------------------------------------------------------
     def _positions(self) -> np.ndarray:
@@ -309,9 +306,11 @@ class MockWorld:
                     done += behind
                     self._publish(now)
                 time.sleep(max(0.0, t0 + (done + 1) * dt - time.monotonic()))
-        except BaseException as exc:  # surfaced by view(): a dead world must stop the loop
+        except BaseException as exc:  # a dead world must stop the arm's process
             self.error = exc
             log.error("mock physics stopped: %s", exc)
+            if self.on_error is not None:
+                self.on_error(exc)
 
     def _grip_goal(self, q_rad: np.ndarray) -> float | None:
         """Where the finger actuator pushes: with the fingers on the cube, to the servo's own
@@ -340,15 +339,21 @@ class MockWorld:
             constrain(self._grip_index, None, None)
             self._blocked = False
 
-    def _publish(self, t_s: float) -> None:
-        """One writer at a time, capture times never going backwards (the physics thread and
-        the loop's thread both publish; the trackers refuse time running backwards)."""
+    def truth(self) -> Truth:
+        """Tool, objects and grasp from the current state (caller holds the lock)."""
         d = self.data
-        with self.lock:
-            self._published_t = max(t_s, getattr(self, "_published_t", -np.inf))
-            self.cameras.publish(self._published_t, d.qpos, d.mocap_pos, d.mocap_quat)
+        grasped = self.objects.fingers_on_cube(d) == 2 if self.objects.cube_body >= 0 else None
+        return self.twin.tool_position(d).copy(), self.objects.truth(d), grasped
 
-    # ---- the world interface ----------------------------------------------------------------
+    def _publish(self, t_s: float) -> None:
+        """One writer at a time, times never going backwards (the physics thread and the
+        control channel both publish; the trackers refuse time running backwards)."""
+        with self.lock:
+            self._published_t = max(t_s, self._published_t)
+            if self.sink is not None:
+                self.sink(self._published_t, self.data, self.truth())
+
+    # ---- what the control channel asks --------------------------------------------------------
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
         with self.lock:
             self.objects.place(self.data, placement)
@@ -361,22 +366,37 @@ class MockWorld:
             mujoco.mj_forward(self.model, self.data)
         self._publish(time.monotonic())
 
+
+class MockWorld:
+    """The host's side of the mock arm's world. The physics runs in the mock arm's own process
+    (``mock_arm.MockArmProcess``), as a real arm's world is outside the host: placing and
+    clearing go over its control channel, the truth is read from shared memory without
+    waiting, and the cameras render in their own process."""
+
+    places_objects = True
+
+    def __init__(self, arm_process: MockArmProcess, cameras: RenderedStereoCameras) -> None:
+        self.process, self.cameras = arm_process, cameras
+
+    def new_episode(self, placement: dict[str, np.ndarray]) -> None:
+        self.process.call("place", {k: np.asarray(v, dtype=float) for k, v in placement.items()})
+
+    def clear(self) -> None:
+        self.process.call("clear")
+
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
-        if self.error is not None:
-            first = (str(self.error).splitlines() or [type(self.error).__name__])[0]
-            raise RuntimeError(f"mock physics stopped: {first}") from self.error
-        with self.lock:
-            d = self.data
-            return View(
-                tool_m=self.twin.tool_position(d).copy(),
-                objects=self.objects.truth(d),
-                actuators_rad=actuators_rad,
-                truth=True,
-                grasped=self.objects.fingers_on_cube(d) == 2
-                if self.objects.cube_body >= 0
-                else None,
-                commanded_rad=commanded_rad,
-            )
+        tool, objects, grasped = self.process.truth()
+        return View(
+            tool_m=tool,
+            objects=objects,
+            actuators_rad=actuators_rad,
+            truth=True,
+            grasped=grasped,
+            commanded_rad=commanded_rad,
+        )
+
+    def close(self) -> None:
+        """The backend's exit stack stops the arm's process and the cameras."""
 
 
 class CameraWorld:

@@ -1,0 +1,48 @@
+"""Real-time scheduling for the control loop's thread, where the OS allows it.
+
+A control loop that wakes late jitters, whatever its own code costs. On Linux a thread under
+``SCHED_FIFO`` runs as soon as it wakes, ahead of every normal process (a training run on the
+other core, the mock arm's process), as ros2_control's controller manager does. It needs root
+or an rtprio limit (``ulimit -r``, ``/etc/security/limits.conf``); without them the loop runs at
+normal priority and says so once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Iterator
+
+log = logging.getLogger(__name__)
+
+CONTROL_PRIORITY = 50  # ros2_control's default for its real-time thread
+
+
+@contextlib.contextmanager
+def control_thread_priority(
+    enabled: bool = True, priority: int = CONTROL_PRIORITY
+) -> Iterator[bool]:
+    """The calling thread at ``SCHED_FIFO`` ``priority`` inside the block, restored after.
+    Yields whether it got it. (Linux schedules threads: pid 0 is the calling thread, and
+    threads started inside the block inherit the policy, so start helpers before it.)"""
+    setter = getattr(os, "sched_setscheduler", None)
+    if not enabled or setter is None:
+        yield False
+        return
+    try:
+        before = os.sched_getscheduler(0), os.sched_getparam(0)
+        setter(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        log.warning(
+            "control loop at normal priority: real-time scheduling refused (%s); run as root "
+            "or raise the rtprio limit (ulimit -r) to get it",
+            exc.strerror or exc,
+        )
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        with contextlib.suppress(OSError):
+            setter(0, before[0], before[1])
