@@ -215,6 +215,7 @@ class DeployLoop:
         self._n_obs_joints = self.builder.fields[0].size
         self._has_goal_delta = "target_goal_delta" in {f.name for f in self.builder.fields}
         self._watchdog_trips = 0
+        self._sight: Any = None  # placement.RigSight, built on the first placement it checks
 
     # ---- one period ---------------------------------------------------------------------
     def _observation(
@@ -368,6 +369,10 @@ class DeployLoop:
             raise
         else:
             self._park()
+        finally:
+            if self._sight is not None:
+                self._sight.close()
+                self._sight = None
         self._save_log()
         stats = self.arm.safety.stats
         return DeployResult(
@@ -399,7 +404,7 @@ class DeployLoop:
         the arm's base); on a real arm the first timeout stops the run."""
         tries = self.PLACEMENT_TRIES if self.world.places_objects else 1
         for attempt in range(tries):
-            self.world.new_episode(contract.placement(rng))
+            self.world.new_episode(self._placement(contract, rng))
             self.perception.reset()
             try:
                 return self._wait_until_ready(contract, episode)
@@ -411,6 +416,34 @@ class DeployLoop:
                 if not self.config.dry_run:
                     self.arm.home()
         raise AssertionError("unreachable")  # pragma: no cover
+
+    MAX_PLACEMENT_DRAWS = 50
+
+    def _placement(self, contract: DeployContract, rng: np.random.Generator) -> dict[str, Any]:
+        """The contract's next placement; for a task placed in view, the first one the rig's
+        cameras find from the home pose (``placement.RigSight``: the sim and mock backends both
+        build the default rig, so both draw the same sequence)."""
+        placement = contract.placement(rng)
+        if not (self.world.places_objects and contract.placed_in_view):
+            return placement
+        if self._sight is None:
+            from sim2real.deploy.placement import RigSight
+            from sim2real.envs import TASKS
+            from sim2real.model import RigSpec
+
+            scene = TASKS[self.io.task].scene
+            self._sight = RigSight(self.decoder.spec, scene, contract.objects, RigSpec())
+        why: str | None = None
+        for _ in range(self.MAX_PLACEMENT_DRAWS):
+            self._hold()  # a render per draw: keep the watchdogs fed
+            why = self._sight.unseen(placement)
+            if why is None:
+                return placement
+            log.info("placement %s drawn again: %s", _placement_str(placement), why)
+            placement = contract.placement(rng)
+        raise DeployStopError(
+            f"no placement the cameras see in {self.MAX_PLACEMENT_DRAWS} draws (last: {why})"
+        )
 
     def _wait_until_ready(self, contract: DeployContract, episode: int) -> Percept:
         """Hold the arm (feeding the watchdogs) until the contract's objects are seen and
@@ -592,6 +625,12 @@ class DeployLoop:
                 self.log.save(self.log_path)
             except OSError as exc:
                 log.error("could not write the trajectory log %s: %s", self.log_path, exc)
+
+
+def _placement_str(placement: Mapping[str, Any]) -> str:
+    return ", ".join(
+        f"{k} {np.round(np.asarray(v, dtype=float), 3).tolist()}" for k, v in placement.items()
+    )
 
 
 def _sleep_until(deadline: float) -> None:

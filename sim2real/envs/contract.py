@@ -80,6 +80,10 @@ class DeployContract(ABC):
 
     task: ClassVar[str]
     objects: ClassVar[tuple[str, ...]]  # tracked objects besides the tool
+    # A world that places the objects (sim, mock) draws again until the rig's cameras find them
+    # all from the home pose (``deploy.placement.RigSight``): for objects that no park pose
+    # reveals, such as flat plates under the arm's base. The env's distribution is not changed.
+    placed_in_view: ClassVar[bool] = False
     # A still object: its estimate moved less than this over ``still_window_s`` before a start.
     still_tolerance_m: ClassVar[float] = 0.003
     still_window_s: ClassVar[float] = 0.5

@@ -245,3 +245,24 @@ def test_success_is_judged_after_the_last_command_has_acted(
     distances = [e.distance_m for e in result.episodes]
     assert result.successes == 2, distances
     assert max(distances) < 0.005, distances
+
+
+def test_trace_on_the_mock_arm_draws_again_instead_of_waiting_for_hidden_seam_plates(
+    spec: ArmSpec, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The loop's second seam (seed 1e6) ends at the arm, its end plate under the base: no
+    camera sees it from home or park. The world draws again before placing it, and every
+    episode starts without waiting out the start timeout and placing anew."""
+    import logging
+
+    from sim2real.deploy.policy_io import io_for
+
+    trace_io = io_for(spec, "Sim2Real/Arm3Trace-v0")
+    caplog.set_level(logging.INFO, logger="sim2real.deploy.loop")
+    result = run_policy(
+        ik_policy(spec, trace_io.builder, trace_io.decoder), trace_io, spec,
+        DeployOptions(**MOCK), LoopConfig(episodes=2, episode_steps=5, start_timeout_s=60),
+    )  # fmt: skip
+    assert result.stopped_early is None and len(result.episodes) == 2
+    assert "drawn again" in caplog.text and "seam_end" in caplog.text
+    assert "placing the objects anew" not in caplog.text
