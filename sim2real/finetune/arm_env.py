@@ -297,9 +297,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             self._pace()
             state = self.arm.read_state()
             percept = self.perception.perceive(state, time.monotonic())
-            view = self.world.view(state.positions_rad, sent)
-            if view is None:  # a real arm: judge on the estimates
-                view = self.loop._estimate_view(contract, percept, state.positions_rad, sent)
+            # the world now, truth or estimates: what this step's command did (as the env
+            # judges a step after its physics)
+            view = self.loop._view(contract, percept, state.positions_rad, sent)
             reason = contract.score(view, self._step) if view is not None else None
             self._step += 1
             obs, d_m = self._observe(state, percept)
@@ -337,6 +337,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.loop._park()
         finally:
             self._contract = None
+            sight = getattr(self.loop, "_sight", None)  # the loop's placement checker, if any
+            if sight is not None:
+                sight.close()
             self._stack.close()
 
     # ---- periods ---------------------------------------------------------------------------

@@ -255,3 +255,29 @@ def test_a_reset_waits_for_the_reset_key_holding_the_arm(
         assert press.action == RESET_DONE and press.monotonic_s < returned[0]
     finally:
         env.close()
+
+
+def test_sb3_sac_learns_on_a_vec_env_of_one_arm_env(spec: ArmSpec, reach_io: PolicyIO) -> None:
+    """An off-policy learner drives the env as it drives any Gymnasium env (here in the
+    control thread, on the sim backend, which has no host watchdog to trip)."""
+    import torch
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    torch.set_num_threads(1)
+    env = ArmEnv(reach_io, spec, SIM, ArmEnvConfig(episode_steps=15))
+    vec = DummyVecEnv([lambda: env])
+    try:
+        model = SAC(
+            "MlpPolicy", vec, learning_starts=10, batch_size=16, buffer_size=1_000,
+            policy_kwargs={"net_arch": [32, 32]}, seed=0, device="cpu",
+        )  # fmt: skip
+        before = [p.detach().clone() for p in model.actor.parameters()]
+        model.learn(total_timesteps=40)
+        after = list(model.actor.parameters())
+        assert any(not torch.equal(b, a) for b, a in zip(before, after, strict=True))
+        assert model.num_timesteps == 40 and env.episodes == 2  # 15-step episodes, truncated
+        assert model.replay_buffer.size() == 40
+    finally:
+        vec.close()
+    assert not env.arm.is_enabled and not env.arm.is_connected
