@@ -8,13 +8,17 @@ host's reading/command mapping, so that the policy sees joint angles in its mode
 writes that mapping (``joint_calibration.yaml``: the user's or the nominal calibration, each
 horn's units turned by its fitted offset, exactly as ``Plant.mounting`` turns the emulator's), and
 every deploy of the adapted policy passes it (``--joint-calibration``). The fitted spec then holds
-what an ArmSpec describes: the fitted servo figures and link lengths. Its fingerprint is the
-adapted policy's; deploying it needs ``--spec fitted.yaml``.
+what an ArmSpec describes: the fitted servo figures and link lengths, and joint limits narrowed by
+the offsets so that the firmware's compiled limits (built from readings) still contain them
+(``offset_limits``). Its fingerprint is the adapted policy's; deploying it needs
+``--spec fitted.yaml``.
 """
 
 from __future__ import annotations
 
 import copy
+import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -22,6 +26,7 @@ import numpy as np
 from hardware.joint_calibration import ArmCalibration, nominal_calibration, with_joints
 from hardware.protocols import get_protocol
 from hardware.spec import ArmSpec
+from sim2real.errors import ConfigError
 from sim2real.sysid.apply import dr_centre, updated_spec
 from sim2real.sysid.kinematics import KinematicFit
 from sim2real.sysid.model import ServoFit
@@ -36,10 +41,46 @@ OFFSET_FLOOR_RAD = 0.005
 SIGMAS = 3.0  # a +-3 sigma range: the true value is inside it unless the fit is biased
 
 
+# Limits are narrowed by this much beyond the offset, so the host's limits, rounded to whole
+# servo units, never land one unit outside the firmware's compiled ones.
+_LIMIT_MARGIN_RAD = 1e-4
+
+
 def fitted_spec(spec: ArmSpec, servo: ServoFit, kin: KinematicFit) -> ArmSpec:
-    """``spec`` with the fitted servo figures and the fitted link lengths (tool kept: a wrist
-    marker cannot see it)."""
-    return kin.fitted_spec(updated_spec(spec, servo))
+    """``spec`` with the fitted servo figures, the fitted link lengths (tool kept: a wrist
+    marker cannot see it) and joint limits the offset calibration can hold
+    (``offset_limits``)."""
+    return offset_limits(kin.fitted_spec(updated_spec(spec, servo)), kin.joint_offset_rad)
+
+
+def offset_limits(spec: ArmSpec, offsets_rad: np.ndarray) -> ArmSpec:
+    """Joint limits (physical angles) reachable through the offset calibration.
+
+    The firmware's compiled limits (``limits.h``, the emulator's) were built from the spec's
+    limits in READING units, and firmware only lets a host tighten them. Through the offset
+    calibration a physical angle p is the reading p - d, so the host may ask for p in
+    [lo + d, hi + d]; the user's limits [lo, hi] still bound the physical joint. The fitted spec
+    keeps the intersection (home and park clipped into it), so pushing its limits never asks
+    the firmware for more than it was compiled with, and safety still holds the user's limits."""
+    joints = []
+    for j, d in zip(spec.joints, np.asarray(offsets_rad, dtype=float), strict=True):
+        lo = math.ceil((max(j.lower_rad, j.lower_rad + d) + _LIMIT_MARGIN_RAD) * 1e4) / 1e4
+        hi = math.floor((min(j.upper_rad, j.upper_rad + d) - _LIMIT_MARGIN_RAD) * 1e4) / 1e4
+        if not lo < hi:
+            raise ConfigError(
+                f"joint {j.name}: fitted zero offset {d:+.4f} rad leaves no range inside its "
+                f"limits [{j.lower_rad}, {j.upper_rad}] rad: re-seat the horn and calibrate again"
+            )
+        joints.append(
+            replace(
+                j,
+                lower_rad=lo,
+                upper_rad=hi,
+                home_rad=min(max(j.home_rad, lo), hi),
+                park_rad=min(max(j.park_rad, lo), hi),
+            )
+        )
+    return replace(spec, joints=tuple(joints))
 
 
 def centred_ranges(

@@ -132,12 +132,32 @@ def wilson(successes: int, n: int) -> list[float]:
 class Adapter:
     """Runs the stages not yet done; ``report`` receives each stage's figures as it ends."""
 
-    def __init__(self, opts: AdaptOptions, report: Callable[[str, dict[str, Any]], None]) -> None:
+    def __init__(
+        self,
+        opts: AdaptOptions,
+        report: Callable[[str, dict[str, Any]], None],
+        on_start: Callable[[str], None] = lambda stage: None,
+    ) -> None:
         self.opts = opts
+        self.on_start = on_start
         self.out = opts.out
         self.report = report
         self.spec = load_spec(opts.spec)
         self.status = self._load_status()
+        self._check_inputs()
+
+    def _check_inputs(self) -> None:
+        """Everything that can be wrong with the input, before the arm moves: the policy has a
+        checkpoint, the plant fits the spec, the given logs are logs of the right kind."""
+        from sim2real.adapt.checkpoint import resolve_source
+
+        resolve_source(self.opts.policy)
+        if self.opts.plant is not None:
+            from hardware.plant import load_plant
+
+            load_plant(self.opts.plant).check_against(self.spec)
+        if self.opts.logs and not self.done("record"):
+            self._classify_logs()
 
     # ---- status -----------------------------------------------------------------------------
     @property
@@ -189,6 +209,7 @@ class Adapter:
             if self.done(stage):
                 self.report(stage, {**self.status["figures"][stage], "resumed": True})
                 continue
+            self.on_start(stage)
             t0 = time.perf_counter()
             figures = getattr(self, f"_stage_{stage}")()
             figures["stage_wall_s"] = round(time.perf_counter() - t0, 2)
@@ -269,9 +290,9 @@ class Adapter:
             "logs": ["record/servo.npz", "record/kinematics.npz"],
         }
 
-    def _take_logs(self, rec: Path) -> dict[str, Any]:
+    def _classify_logs(self) -> tuple[list[Path], list[Path]]:
         """Given logs: a log with ``t_cmd_s`` is a servo log, one with wrist-marker keys a
-        kinematic one (a log may be both); each is checked and copied into ``record/``."""
+        kinematic one (a log may be both); each is loaded and checked."""
         servo, kin = [], []
         for p in self.opts.logs:
             try:
@@ -280,30 +301,40 @@ class Adapter:
                 raise ConfigError(f"log {str(p)!r} does not exist") from None
             except (OSError, ValueError) as exc:
                 raise ConfigError(f"log {str(p)!r} is not a readable npz file: {exc}") from None
+            marker = bool(keys & {"ee_marker_m", "ee_est_m"})
             if "t_cmd_s" in keys:
                 servo.append(p)
-            if keys & {"ee_marker_m", "ee_est_m"}:
+            if marker:
                 kin.append(p)
-            if "t_cmd_s" not in keys and not keys & {"ee_marker_m", "ee_est_m"}:
+            if "t_cmd_s" not in keys and not marker:
                 raise ConfigError(
-                    f"log {str(p)!r} is neither a servo log (t_cmd_s) nor has wrist-marker "
-                    "observations (ee_marker_m, or ee_est_m with ee_seen)"
+                    f"log {str(p)!r} is neither a servo excitation log (t_cmd_s) nor a log with "
+                    "wrist-marker observations (ee_marker_m, or ee_est_m with ee_seen)"
                 )
-        if not servo or not kin:
-            what = "servo excitation log (sysid --record)" if not servo else "log with markers"
-            raise ConfigError(f"--logs needs at least one {what}")
+        if not servo:
+            raise ConfigError("--logs has no servo excitation log (sysid --record writes one)")
+        if not kin:
+            raise ConfigError(
+                "--logs has no log with wrist-marker observations (ee_marker_m, or ee_est_m with "
+                "ee_seen): record one with both cameras on (sim2real deploy --log)"
+            )
         from sim2real.sysid.fit import load_log
         from sim2real.sysid.kinematics import load_marker_logs
 
         for p in servo:
             load_log(p, self.spec.n_joints)
-        load_marker_logs(kin, self.spec)  # a log without marker observations fails here
+        load_marker_logs(kin, self.spec)  # too few marker observations fail here, in one line
+        return servo, kin
+
+    def _take_logs(self, rec: Path) -> dict[str, Any]:
+        """The given logs, copied into ``record/`` so the folder holds what was fitted."""
+        servo, kin = self._classify_logs()
         names: dict[str, list[str]] = {"servo": [], "kinematics": []}
         for kind, paths in (("servo", servo), ("kinematics", kin)):
             for i, p in enumerate(paths):
-                name = f"record/{kind}-{i}.npz"
-                atomic_write_bytes(self.out / name, Path(p).read_bytes())
-                names[kind].append(name)
+                name = f"{kind}-{i}.npz"
+                atomic_write_bytes(rec / name, Path(p).read_bytes())
+                names[kind].append(f"record/{name}")
         return {"logs": names, "given": [str(p) for p in self.opts.logs]}
 
     def _record_on_arm(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

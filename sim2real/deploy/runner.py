@@ -152,7 +152,10 @@ def _build_mock(
     relaxed: dict[str, Any] = {}
     if opts.watchdog_s is not None:  # a loaded machine: the arm's process may answer late too
         relaxed = {"host_watchdog_s": opts.watchdog_s, "timeout_s": max(0.05, opts.watchdog_s / 8)}
-    arm = SerialArm(spec, arm_process.port, opts.protocol, **relaxed)
+    # a host-side joint calibration (adapt's fitted zero offsets) acts on the mock as on a bus
+    arm = SerialArm(
+        spec, arm_process.port, opts.protocol, calibration=opts.joint_calibration, **relaxed
+    )
     stack.enter_context(arm)
     arm.emulator = arm_process  # type: ignore[attr-defined]  # tests reach the mock through the arm
     arm.world = world  # type: ignore[attr-defined]
