@@ -114,7 +114,10 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"[{stage}] " + ", ".join(f"{k}={v}" for k, v in figures.items()), flush=True)
 
-    adapter = Adapter(opts, report)
+    def on_start(stage: str) -> None:
+        print(f"sim2real adapt: stage {stage} started", file=sys.stderr, flush=True)
+
+    adapter = Adapter(opts, report, on_start)
     print(f"sim2real adapt: {opts.out}", file=sys.stderr, flush=True)
     try:
         figures = adapter.run()
