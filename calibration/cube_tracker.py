@@ -133,6 +133,18 @@ class SmallMarkerDetector:
         ]
 
 
+def _unique_faces(found: list[Marker], face_ids: frozenset[int]) -> list[Marker]:
+    """The cube's face markers found exactly once (a repeated id is ambiguous)."""
+    ids = [m.id for m in found]
+    return [m for m in found if m.id in face_ids and ids.count(m.id) == 1]
+
+
+def _area_px(corners_px: np.ndarray) -> float:
+    c = np.asarray(corners_px, np.float64).reshape(-1, 2)
+    x, y = c[:, 0], c[:, 1]
+    return 0.5 * abs(float(x @ np.roll(y, -1) - y @ np.roll(x, -1)))
+
+
 def _rigid_inverse(a_T_b: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = a_T_b[:3, :3].T
@@ -208,6 +220,7 @@ def refine_cube_pose(
     markers: tuple[list[Marker], list[Marker]],
     left_T_cube: np.ndarray,
     iterations: int = 10,
+    free_scale: bool = True,
 ) -> tuple[np.ndarray, float]:
     """Refine ``left_T_cube`` (4, 4) so the cube's face corners reproject onto the detected
     corners in both images (Gauss–Newton on rotation vector, translation and the markers'
@@ -219,12 +232,21 @@ def refine_cube_pose(
     is the least-squares pose. The apparent marker size is free (a 7th parameter) because blur
     and thresholding move detected corners inwards by a fraction of a pixel: with the printed
     size imposed, a 15 px marker read 1 % small would put the cube ~6 mm too far; free, depth
-    comes from the disparity. Returns the pose and the RMS reprojection error (px).
+    comes from the disparity. Corners from one camera only carry no disparity: there the printed
+    size must stay imposed (``free_scale=False``) or depth is unobservable. Returns the pose and
+    the RMS reprojection error (px).
     """
     models = corner_models(cube, markers)
     rvec = cv2.Rodrigues(np.ascontiguousarray(left_T_cube[:3, :3]))[0].ravel()
     params = np.concatenate([rvec, left_T_cube[:3, 3], [1.0]])
-    r, J = residual_and_jacobian(rig, models, params)
+
+    def residuals(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, J = residual_and_jacobian(rig, models, p)
+        if not free_scale:
+            J[:, 6] = 0.0  # the scale's step is then zero: the printed size holds
+        return r, J
+
+    r, J = residuals(params)
     for _ in range(iterations):
         JtJ = J.T @ J
         # cv2.solve, not np.linalg: a 7x7 system must not wait on BLAS threads in a busy loop.
@@ -235,7 +257,7 @@ def refine_cube_pose(
             break
         delta = delta.ravel()
         trial = params + delta
-        r_trial, J_trial = residual_and_jacobian(rig, models, trial)
+        r_trial, J_trial = residuals(trial)
         if float(r_trial @ r_trial) >= float(r @ r):
             break
         params, r, J = trial, r_trial, J_trial
@@ -287,7 +309,9 @@ class StereoCubeTracker:
     ``refine`` (default) the whole cube is then fitted to every detected corner in both images
     (:func:`refine_cube_pose`); a fit worse than ``max_reprojection_px`` (a marker glued turned,
     a false detection) falls back to the per-face average, and a frame pair whose faces disagree
-    there on the centre by more than ``max_spread_m`` is a miss.
+    there on the centre by more than ``max_spread_m`` is a miss. With ``single_view`` (default),
+    a pair with no face in both images is fitted from the faces each camera sees alone
+    (:meth:`_single_view`): the arm descending on the cube usually hides it from one camera.
     """
 
     def __init__(
@@ -306,6 +330,7 @@ class StereoCubeTracker:
         refine: bool = True,
         max_reprojection_px: float = 1.5,
         full_search_every: int = 4,
+        single_view: bool = True,
     ) -> None:
         self.rig = rig
         self.base_T_cam = np.eye(4) if base_T_cam is None else np.asarray(base_T_cam, np.float64)
@@ -334,6 +359,7 @@ class StereoCubeTracker:
             raise ConfigError(f"full_search_every must be ≥ 1, got {full_search_every}")
         self.full_search_every = full_search_every
         self.refine = refine
+        self.single_view = single_view
         self.max_reprojection_px = max_reprojection_px
         self.detector = SmallMarkerDetector(self.cube.dictionary, upscale)
         self._face_ids = frozenset(self.cube.face_ids)
@@ -404,7 +430,7 @@ class StereoCubeTracker:
                 if face is not None:
                     faces.append(face)
         if not faces:
-            return None
+            return self._single_view(left, right) if self.single_view else None
         stereo = fuse_faces(self.cube, faces)
         if self.refine:
             best = min(faces, key=lambda f: f.fit_rms_m)
@@ -430,6 +456,51 @@ class StereoCubeTracker:
                     reprojection_px=rms_px,
                 )
         return stereo if stereo.spread_m <= self.max_spread_m else None
+
+    def _single_view(self, left: list[Marker], right: list[Marker]) -> CubeFit | None:
+        """The cube from faces that no one camera pair shares: the arm often hides the cube from
+        one camera while the other still sees a face. Seed from the largest face's planar pose
+        (IPPE: both of its mirror solutions), then fit the rigid cube to every face corner in
+        both images; one camera alone keeps the printed size (no disparity to say depth)."""
+        used = (
+            _unique_faces(left, self._face_ids),
+            _unique_faces(right, self._face_ids),
+        )
+        seen = [(side, m) for side in (0, 1) for m in used[side]]
+        if not seen:
+            return None
+        side, seed = max(seen, key=lambda sm: _area_px(sm[1].corners_px))
+        cam = self.rig.left if side == 0 else self.rig.right
+        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            self._model_corners,
+            np.ascontiguousarray(seed.corners_px, np.float64),
+            cam.K,
+            cam.dist,
+            flags=cv2.SOLVEPNP_IPPE_SQUARE,
+        )
+        left_T_cam = np.eye(4)
+        if side == 1:
+            left_T_cam[:3, :3], left_T_cam[:3, 3] = self.rig.R.T, -self.rig.R.T @ self.rig.T
+        face_T_cube = _rigid_inverse(self.cube.cube_T_face(seed.id))
+        both = bool(used[0]) and bool(used[1])
+        best: tuple[np.ndarray, float] | None = None
+        for rvec, tvec in zip(rvecs[:n], tvecs[:n], strict=True):
+            cam_T_marker = _pose(np.concatenate([np.ravel(rvec), np.ravel(tvec)]))
+            start = left_T_cam @ cam_T_marker @ face_T_cube
+            pose, rms_px = refine_cube_pose(self.rig, self.cube, used, start, free_scale=both)
+            if best is None or rms_px < best[1]:
+                best = (pose, rms_px)
+        if best is None or not best[1] <= self.max_reprojection_px:
+            return None
+        base_T_cube = self.base_T_cam @ best[0]
+        return CubeFit(
+            base_T_cube[:3, 3].copy(),
+            yaw_of(base_T_cube[:3, :3]),
+            tuple(sorted({m.id for m in used[0] + used[1]})),
+            0.0,
+            math.nan,  # no face was triangulated
+            best[1],
+        )
 
     def measure(self, left_bgr: np.ndarray, right_bgr: np.ndarray) -> CubeFit | None:
         """The cube's raw (unfiltered) centre and yaw from one frame pair, or ``None``.
