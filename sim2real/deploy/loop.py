@@ -227,6 +227,7 @@ class DeployLoop:
         prev_action: np.ndarray,
         step: int,
     ) -> Any:
+        contract.observe_arm(positions_rad, targets)
         readings = contract.readings(percept, step)
         goal = contract.goal_m(percept, step) if self._has_goal_delta else None
         vec = self.builder.build(

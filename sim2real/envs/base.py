@@ -397,6 +397,11 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
     def steps(self) -> int:
         return self._steps
 
+    def commanded_rad(self) -> np.ndarray:
+        """The actuator targets last commanded (joints, then gripper): what the deploy loop
+        knows it sent."""
+        return self._targets
+
     def _gripper_target(self) -> float | None:
         return float(self._targets[-1]) if self.twin.has_gripper else None
 

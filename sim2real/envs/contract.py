@@ -129,6 +129,10 @@ class DeployContract(ABC):
         """Latch what the episode keeps from its start (pick: the lift goal above the cube)."""
 
     # ---- the observation -------------------------------------------------------------------
+    def observe_arm(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> None:  # noqa: B027
+        """The servo readings and the targets last sent, just before ``readings`` (pick: do
+        the fingers hold the cube?)."""
+
     @abstractmethod
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
         """The task's observation readings (``ee_pos``, goals, task extras) at period ``step``.

@@ -14,6 +14,7 @@ from sim2real.errors import ConfigError
 from sim2real.observation import ObsField
 
 if TYPE_CHECKING:
+    from hardware.spec import ArmSpec
     from sim2real.envs.base import Arm3Env
 
 LIFT_M = 0.07  # goal above the start pose; with the 2 cm success ball, success ⇒ lifted ≥ 5 cm
@@ -38,6 +39,31 @@ def cube_readings(ee_m: np.ndarray, cube_m: np.ndarray, blind_s: float) -> dict[
         "cube_delta": cube_m - ee_m,
         "cube_blind_s": np.array([min(max(float(blind_s), 0.0), BLIND_CAP_S)]),
     }
+
+
+def holding(spec: ArmSpec, commanded_rad: np.ndarray, reading_rad: np.ndarray) -> bool:
+    """The gripper holds something: commanded (nearly) closed, yet it reads open by more than
+    ``HOLD_MARGIN_RAD`` (an object stops the fingers). Actuator vectors: joints, then gripper.
+    Servo readings only, so the env, the deploy loop and a real arm judge it alike."""
+    grip, n = spec.gripper, spec.n_joints
+    if grip is None or len(commanded_rad) <= n or len(reading_rad) <= n:
+        return False
+    span = grip.open_rad - grip.closed_rad
+    commanded_closed = (float(commanded_rad[n]) - grip.closed_rad) / span < 0.25
+    reading_open = (float(reading_rad[n]) - grip.closed_rad) * np.sign(span) > HOLD_MARGIN_RAD
+    return bool(commanded_closed and reading_open)
+
+
+def cube_estimate(
+    cube_m: np.ndarray, tool_m: np.ndarray, blind_s: float, is_holding: bool
+) -> np.ndarray:
+    """The cube tracker's prediction with a grasp model: a cube out of sight in fingers that
+    hold something moves with the tool (it is between them); otherwise it stays where it was
+    last seen (a cube at rest does not move). Without the first rule a lifted cube's estimate
+    stays on the table, and so does ``goal_delta``: the policy cannot see its lift."""
+    if blind_s > 0.0 and is_holding:
+        return np.asarray(tool_m, dtype=float)
+    return cube_m
 
 
 def lift_goal(cube_rest_m: np.ndarray) -> np.ndarray:
@@ -79,6 +105,7 @@ class PickContract(DeployContract):
         self._max_lift_m = 0.0
         self._grasped_ever = False
         self._grasped_now = False
+        self._holding_now = False  # the servo readings say the fingers hold something
         self._blind_periods = 0
         self._periods = 0
         self._max_blind_s = 0.0
@@ -90,10 +117,15 @@ class PickContract(DeployContract):
     def begin(self, percept: Percept) -> None:
         _, cube = need(percept, "cube")
         self.goal = lift_goal(cube)
+        self._holding_now = False
+
+    def observe_arm(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> None:
+        self._holding_now = holding(self.spec, commanded_rad, reading_rad)
 
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
         tool, cube = need(percept, "cube")
         blind = percept.blind_s("cube")
+        cube = cube_estimate(cube, tool, blind, self._holding_now)
         self._periods += 1
         self._blind_periods += int(blind > 0.0)
         self._max_blind_s = max(self._max_blind_s, blind)
@@ -108,14 +140,9 @@ class PickContract(DeployContract):
         return self.goal
 
     def _holding(self, view: View) -> bool:
-        grip, commanded_rad = self.spec.gripper, view.commanded_rad
-        if grip is None or commanded_rad is None or len(view.actuators_rad) <= self.spec.n_joints:
+        if view.commanded_rad is None:
             return False
-        n = self.spec.n_joints
-        span = grip.open_rad - grip.closed_rad
-        commanded_closed = (commanded_rad[n] - grip.closed_rad) / span < 0.25
-        reading_open = (view.actuators_rad[n] - grip.closed_rad) * np.sign(span) > HOLD_MARGIN_RAD
-        return bool(commanded_closed and reading_open)
+        return holding(self.spec, view.commanded_rad, view.actuators_rad)
 
     def score(self, view: View, step: int) -> str | None:
         cube = view.objects["cube"]
@@ -240,8 +267,16 @@ class PickTask(Task):
     def true_points(self, env: Arm3Env) -> np.ndarray:
         return self.cube_position(env)[None]
 
+    def _cube_estimate(self, env: Arm3Env, sensed: Sensed) -> np.ndarray:
+        """The contract's grasp-aware prediction on the env's sensed readings."""
+        blind = float(sensed.blind_s[0])
+        if blind <= 0.0:
+            return sensed.points_m[0]
+        is_holding = holding(env.spec_arm, env.commanded_rad(), sensed.joints_rad)
+        return cube_estimate(sensed.points_m[0], sensed.ee_m, blind, is_holding)
+
     def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
-        return sensed.points_m[0], self.goal_m
+        return self._cube_estimate(env, sensed), self.goal_m
 
     def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
         return self.cube_position(env), self.goal_m
@@ -256,7 +291,8 @@ class PickTask(Task):
         )
 
     def extra_readings(self, env: Arm3Env, sensed: Sensed) -> dict[str, np.ndarray]:
-        return cube_readings(sensed.ee_m, sensed.points_m[0], float(sensed.blind_s[0]))
+        cube = self._cube_estimate(env, sensed)
+        return cube_readings(sensed.ee_m, cube, float(sensed.blind_s[0]))
 
     def is_grasped(self, env: Arm3Env) -> bool:
         """Both fingers touch the cube (from MuJoCo's contact list)."""
