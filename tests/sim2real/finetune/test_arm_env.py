@@ -67,9 +67,29 @@ def test_check_env_passes_on_the_sim_backend_and_close_parks(
         env.reset()
 
 
+def _children() -> set[int]:
+    """This process's child processes that run sim2real code (the mock arm, the cameras); a
+    zombie not reaped yet counts. multiprocessing's resource tracker lives as long as we do."""
+    me, out = os.getpid(), set()
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+                with open(f"/proc/{entry}/cmdline", "rb") as f:
+                    cmdline = f.read()
+            except OSError:
+                continue
+            if int(fields[1]) == me and (b"sim2real" in cmdline or fields[0] == "Z"):
+                out.add(int(entry))
+    return out
+
+
 def test_check_env_passes_on_the_mock_backend_over_a_pty(spec: ArmSpec, reach_io: PolicyIO) -> None:
+    children = _children()
     env = ArmEnv(reach_io, spec, DeployOptions(**MOCK), ArmEnvConfig(start_timeout_s=60))
     emulator = env.arm.emulator  # type: ignore[attr-defined]
+    assert _children() - children, "the mock arm and its cameras run in processes of their own"
     try:
         check_env(env)
         # the safety filter once per step, counted by the filter itself (a period where an
@@ -87,6 +107,7 @@ def test_check_env_passes_on_the_mock_backend_over_a_pty(spec: ArmSpec, reach_io
     assert not env.arm.is_enabled and not env.arm.is_connected
     last = env.arm.last_sent_rad
     assert last is not None and _parked(spec, last)
+    _wait(lambda: _children() <= children, "the mock's processes end")
 
 
 def test_the_safety_filter_runs_exactly_once_per_step(
@@ -109,6 +130,19 @@ def test_the_safety_filter_runs_exactly_once_per_step(
     assert reach_env.safety_stats["step_clamped"] >= 1
     steps = np.abs(np.diff(np.asarray(reach_env.arm.received)[-16:], axis=0))  # type: ignore[attr-defined]
     assert np.all(steps <= reach_env.arm_spec.safety.max_step_rad + 1e-9)
+
+
+def test_a_late_period_is_logged_and_counted_never_an_error(
+    reach_env: ArmEnv, caplog: pytest.LogCaptureFixture
+) -> None:
+    reach_env.reset(seed=4)
+    reach_env.step(np.zeros(3, dtype=np.float32))
+    before = reach_env.overruns
+    time.sleep(3 * reach_env.period_s)  # a learner that kept the thread too long
+    _, _, _, truncated, info = reach_env.step(np.zeros(3, dtype=np.float32))
+    assert not truncated and info["period_s"] >= 3 * reach_env.period_s
+    assert reach_env.overruns == before + 1 and "overrun: period" in caplog.text
+    assert reach_env.arm.is_enabled and reach_env.arm.estop_reason is None
 
 
 def test_an_ik_policy_reaches_rewards_are_the_training_rewards_and_episodes_truncate(
