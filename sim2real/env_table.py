@@ -144,3 +144,13 @@ def entry(name: str) -> EnvEntry:
 def task_of(name: str) -> str:
     """The task an id runs (``reach``, ``pick``, ...); "" for an id without one."""
     return str(entry(name).kwargs.get("task", ""))
+
+
+# Where each task's deploy contract lives (``sim2real.envs.contract``), as string entry points:
+# deploy imports only the one it runs. Reach's imports no MuJoCo, so a reach policy deploys in
+# the deploy profile; a test holds this table to the tasks' own ``contract`` attributes.
+DEPLOY_CONTRACTS: dict[str, str] = {
+    "reach": "sim2real.envs.reach_contract:ReachContract",
+    "pick": "sim2real.envs.pick:PickContract",
+    "trace": "sim2real.envs.trace:TraceContract",
+}

@@ -11,58 +11,50 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
 
 import mujoco
 import numpy as np
 
-from calibration.cube import MarkerCube, SeamMarkers
 from hardware.spec import ArmSpec
 from sim2real.errors import ConfigError, UnknownNameError
+from sim2real.scene_names import (
+    CUBE_BODY,
+    CUBE_GEOM,
+    CUBE_JOINT,
+    CUBE_MARKER_GEOM_PREFIX,
+    CUBE_MARKER_TEXTURE_PX,
+    EE_MARKER_GEOM,
+    EE_MARKER_ID,
+    EE_MARKER_POS_M,
+    EE_MARKER_SIZE_M,
+    EE_MARKER_TILT_RAD,
+    FINGER_JOINTS,
+    LEVEL_TENDON,
+    MARKER_CUBE,
+    MARKER_FILL,
+    MARKER_GEOM,
+    MARKER_TEXTURE_PX,
+    PATH_GEOM_PREFIX,
+    SCENES,
+    SEAM_BODY,
+    SEAM_BODY_Z_M,
+    SEAM_LENGTH_M,
+    SEAM_MARKER_GEOM_PREFIX,
+    SEAM_MARKERS,
+    TABLE_GEOM,
+    TARGET_BODY,
+    TARGET_MARKER_ID,
+    TARGET_MARKER_SIZE_M,
+    TARGET_PLATE_GEOM,
+    TARGET_SITE,
+    TOOL_SITE,
+    WRIST_JOINT,
+)
 
-Scene = Literal["reach", "pick", "trace"]
-SCENES: tuple[str, ...] = ("reach", "pick", "trace")
-
-# Names shared by the model, the envs and the deploy loop (resolved to ids once per model).
-TOOL_SITE = "tool"
-TARGET_BODY = "target"
-TARGET_SITE = "target"
-CUBE_BODY = "cube"
-CUBE_GEOM = "cube"
-CUBE_JOINT = "cube_free"
-WRIST_JOINT = "wrist_level"
-FINGER_JOINTS = ("finger_left", "finger_right")
-FINGER_GEOMS = ("finger_left", "finger_right")
-TABLE_GEOM = "table"
-LEVEL_TENDON = "gripper_level"
-MARKER_GEOM = "target_marker"
-TARGET_PLATE_GEOM = "target_plate"
-EE_MARKER_GEOM = "ee_marker"
-PATH_GEOM_PREFIX = "seam_"
-SEAM_BODY = "seam"
-SEAM_LENGTH_M = 0.12
-SEAM_BODY_Z_M = 0.0003  # the seam's line sits just above the table (no z-fighting)
-
-# ArUco markers for the camera pipeline (deploy scenes): DICT_4X4_50 ids, black square side.
-MARKER_DICTIONARY = "DICT_4X4_50"
-TARGET_MARKER_ID = 0
-EE_MARKER_ID = 1
-TARGET_MARKER_SIZE_M = 0.04
-EE_MARKER_SIZE_M = 0.03
-MARKER_TEXTURE_PX = 96  # texture side; the black square covers MARKER_FILL of it
-MARKER_FILL = 0.75
-# Where the ee marker sits on the wrist body (plate centre, on a riser above the wrist link),
-# tilted forward so the cameras in front never see it edge-on (a flat plate is unreadable when
-# the gripper is high and the view grazes it).
-EE_MARKER_POS_M = (0.02, 0.0, 0.022)
-EE_MARKER_TILT_RAD = 0.7
-# The pick cube's face markers and the trace seam's end plates (deploy scenes only): their
-# geometry is shared with the tracker and the printable sheet, so it lives in calibration.
-MARKER_CUBE = MarkerCube(size_m=0.025, marker_m=0.02, face_ids=(2, 3, 4, 5, 6))
-CUBE_MARKER_TEXTURE_PX = 120  # 96 px of black square: 16 px per ArUco module (6 x 6)
-CUBE_MARKER_GEOM_PREFIX = "cube_marker_"
-SEAM_MARKERS = SeamMarkers(start_id=7, end_id=8, marker_m=0.03, end_offset_m=0.027)
-SEAM_MARKER_GEOM_PREFIX = "seam_marker_"
+# The names live in scene_names (no MuJoCo import there); model.NAME stays valid everywhere.
+from sim2real.scene_names import FINGER_GEOMS as FINGER_GEOMS
+from sim2real.scene_names import MARKER_DICTIONARY as MARKER_DICTIONARY
+from sim2real.scene_names import Scene as Scene
 
 PHYSICS_TIMESTEP_S = 0.005
 # Position-servo stiffness: the stall torque is reached at this tracking error.

@@ -3,12 +3,14 @@
 A fresh venv under ``.cache/`` gets ``pip install '.[deploy]'`` and nothing else (pip talks to the
 package index: this test needs network, hence slow). Then: none of torch, mujoco, robosuite, ray or
 stable-baselines3 is importable there; that venv's ``sim2real arm emulate`` serves an emulated
-bus on a pty and its ``sim2real arm ping`` talks to it; a command that needs another extra says
-which one in one line.
+bus on a pty, its ``sim2real arm ping`` talks to it, and its ``sim2real deploy`` runs a shipped
+reach policy (ONNX) on that emulator with forward-kinematics perception for two episodes; a
+command that needs another extra says which one in one line.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -76,9 +78,8 @@ def test_deploy_profile_has_no_simulator_or_learner(lean_bin: Path, tmp_path: Pa
 
 
 def test_deploy_profile_imports_the_arm_side(lean_bin: Path, tmp_path: Path) -> None:
-    """Every module of hardware, calibration and s2r_common, and the sim2real modules the deploy
-    loop on a serial arm shares with training, import with the deploy extra alone. (The deploy
-    loop itself joins this list once it no longer imports ``sim2real.model``, which needs MuJoCo.)"""
+    """Every module of hardware, calibration and s2r_common, and the sim2real modules of the
+    deploy path on a serial arm, import with the deploy extra alone."""
     code = (
         "import importlib, pkgutil\n"
         "failed = []\n"
@@ -90,7 +91,9 @@ def test_deploy_profile_imports_the_arm_side(lean_bin: Path, tmp_path: Path) -> 
         "        except Exception as exc:\n"
         "            failed.append(f'{m.name}: {exc!r}')\n"
         "for name in ('sim2real.observation', 'sim2real.export', 'sim2real.actuation',\n"
-        "             'sim2real.cli.main'):\n"
+        "             'sim2real.cli.main', 'sim2real.runmeta', 'sim2real.deploy.runner',\n"
+        "             'sim2real.deploy.loop', 'sim2real.deploy.kinematic',\n"
+        "             'sim2real.deploy.perception', 'sim2real.envs.reach_contract'):\n"
         "    importlib.import_module(name)\n"
         "print(failed)"
     )
@@ -132,3 +135,29 @@ def test_a_command_of_another_profile_names_its_extra(lean_bin: Path, tmp_path: 
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "pip install 'sim2real[" in lines[0], res.stderr
+
+
+def test_deploy_a_shipped_policy_in_the_deploy_profile(
+    lean_bin: Path, tmp_path: Path, spawn: Callable[..., subprocess.Popen[Any]]
+) -> None:
+    """The issue's Raspberry Pi case: the shipped reach policy (ONNX, onnxruntime) drives the
+    emulated bus over a pty, the tool found by forward kinematics, two episodes."""
+    link = tmp_path / "arm"
+    emulator = spawn(
+        [str(lean_bin / "sim2real"), "arm", "emulate", "--protocol", "s2r", "--link", str(link),
+         "--duration-s", "300"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_clean_env(),
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert emulator.stdout is not None
+    assert emulator.stdout.readline().strip() == str(link)
+    res = subprocess.run(
+        [str(lean_bin / "sim2real"), "deploy", "reach-ppo", "--backend", "serial", "--port",
+         str(link), "--perception", "fk", "--episodes", "2", "--json"],
+        capture_output=True, text=True, env=_clean_env(), cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr + res.stdout
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["backend"] == "serial" and summary["task"] == "reach"
+    assert summary["episodes"] == 2 and summary["stopped_early"] is None
+    assert summary["safety"]["commands"] > 0 and summary["safety"]["nonfinite"] == 0

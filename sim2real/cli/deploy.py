@@ -21,6 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", default=None, help="serial port or pyserial URL (serial)")
     parser.add_argument("--baud", type=int, default=None)
     parser.add_argument("--joint-calibration", type=Path, default=None, help="arm calibration YAML")
+    parser.add_argument(
+        "--perception", default="cameras", help="serial: cameras (stereo markers) | fk (forward "
+        "kinematics of the readings; the objects where the episode placed them, no cameras)"
+    )  # fmt: skip
     parser.add_argument("--cameras", default="0,1", help="left,right cv2.VideoCapture indices")
     parser.add_argument("--calibration", type=Path, default=None, help="stereo calibration file")
     parser.add_argument(
@@ -86,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec)
     opts = DeployOptions(
         backend=args.backend,
+        perception=args.perception,
         protocol=args.protocol,
         port=args.port,
         baud=args.baud,

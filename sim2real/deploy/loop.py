@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,10 +30,12 @@ from hardware.arm import ArmBase
 from hardware.errors import HardwareError
 from sim2real.deploy.perception import Perception
 from sim2real.deploy.policy_io import PolicyIO
-from sim2real.deploy.worlds import World
 from sim2real.envs.contract import DeployContract, MissingEstimateError, Percept, View
 from sim2real.errors import ConfigError, Sim2RealError
 from sim2real.observation import command_readings
+
+if TYPE_CHECKING:  # worlds import MuJoCo; the deploy profile runs without it
+    from sim2real.deploy.worlds import World
 
 log = logging.getLogger(__name__)
 

@@ -41,7 +41,7 @@ from calibration.triangulate import StereoRig
 from hardware.arm import ArmState
 from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
-from sim2real import model as names
+from sim2real import scene_names as names
 from sim2real.deploy.frames import FramePair, FrameSource, check_fresh
 from sim2real.envs.contract import ObjectEstimate, Percept
 from sim2real.errors import ConfigError

@@ -9,7 +9,7 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,13 +19,16 @@ from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig
 from sim2real.deploy.perception import MarkerLayout, OraclePerception, Perception, StereoPerception
 from sim2real.deploy.policy_io import PolicyIO, policy_io
 from sim2real.deploy.realtime import control_thread_priority
-from sim2real.deploy.worlds import World
 from sim2real.errors import ConfigError, UnknownNameError
+
+if TYPE_CHECKING:  # worlds import MuJoCo; the deploy profile runs without it
+    from sim2real.deploy.worlds import World
 
 
 @dataclass(frozen=True)
 class DeployOptions:
     backend: str = "mock"
+    perception: str = "cameras"  # serial: cameras | fk (forward kinematics, no cameras)
     protocol: str = "s2r"
     port: str | None = None
     baud: int | None = None
@@ -55,6 +58,10 @@ class DeployOptions:
             raise UnknownNameError("backend", self.backend, BACKENDS)
         if self.backend == "serial" and not self.port:
             raise ConfigError("--backend serial needs --port (for example /dev/ttyUSB0)")
+        if self.perception not in PERCEPTIONS:
+            raise UnknownNameError("perception", self.perception, PERCEPTIONS)
+        if self.perception != "cameras" and self.backend != "serial":
+            raise ConfigError(f"--perception is for --backend serial, not {self.backend!r}")
         if self.dry_run and self.backend != "serial":
             raise ConfigError(f"--dry-run is for --backend serial, not {self.backend!r}")
         if self.plant is not None and self.backend != "mock":
@@ -69,7 +76,7 @@ class DeployOptions:
             raise ConfigError(f"camera_fps {self.camera_fps} not in [1, 240]")
 
 
-Built = tuple[ArmBase, Perception, World]
+Built = tuple[ArmBase, Perception, "World"]
 Builder = Callable[[ArmSpec, PolicyIO, DeployOptions, contextlib.ExitStack], Built]
 
 
@@ -207,6 +214,10 @@ def _stereo_perception(
 def _build_serial(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
+    if opts.perception == "fk":  # no cameras (and no MuJoCo): sim2real.deploy.kinematic
+        from sim2real.deploy.kinematic import build_serial_fk
+
+        return build_serial_fk(spec, io, opts, stack)
     from calibration.triangulate import StereoRig
     from hardware.serial_arm import SerialArm
     from sim2real.deploy.frames import OpenCVStereoCameras
@@ -232,6 +243,7 @@ def _build_serial(
     return arm, perception, CameraWorld()
 
 
+PERCEPTIONS: tuple[str, ...] = ("cameras", "fk")
 BACKENDS: dict[str, Builder] = {"sim": _build_sim, "mock": _build_mock, "serial": _build_serial}
 
 

@@ -11,10 +11,8 @@ imports the task modules that register themselves.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from typing import TYPE_CHECKING, Any
-
-import gymnasium as gym
-from gymnasium.envs.registration import WrapperSpec
 
 from sim2real.env_table import (
     ENTRY_POINT,
@@ -28,6 +26,13 @@ from sim2real.env_table import (
     has_discrete_actions,
     resolve_env_id,
 )
+
+# The deploy profile has no Gymnasium: its task contracts still import from this package, the
+# ids resolve through ``env_table``, and nothing is registered or built.
+HAVE_GYMNASIUM = importlib.util.find_spec("gymnasium") is not None
+if HAVE_GYMNASIUM or TYPE_CHECKING:
+    import gymnasium as gym
+    from gymnasium.envs.registration import WrapperSpec
 
 if TYPE_CHECKING:
     from sim2real.envs.base import REWARDS, TASKS, Arm3Env, Arm3GoalEnv, Task, register_task
@@ -71,13 +76,6 @@ def forward_episode_length(env: gym.Env[Any, Any]) -> gym.Env[Any, Any]:
     return env
 
 
-_FORWARD_EPISODE_LENGTH = WrapperSpec(
-    name="ForwardEpisodeLength",
-    entry_point=f"{__name__}:forward_episode_length",
-    kwargs={},
-)
-
-
 def register_all() -> None:
     """Register every id once (idempotent; other backends append rows before calling).
 
@@ -85,6 +83,9 @@ def register_all() -> None:
     ``max_episode_steps`` reaches it, whether passed to ``gym.make`` (see
     ``forward_episode_length``) or as an env kwarg through an ``EnvSpec``.
     """
+    forward = WrapperSpec(
+        name="ForwardEpisodeLength", entry_point=f"{__name__}:forward_episode_length", kwargs={}
+    )
     for entry in ENV_TABLE:
         if entry.id not in gym.registry:
             gym.register(
@@ -93,16 +94,19 @@ def register_all() -> None:
                 kwargs=dict(entry.kwargs),
                 max_episode_steps=None,
                 disable_env_checker=True,  # the contract tests run check_env on every id
-                additional_wrappers=(_FORWARD_EPISODE_LENGTH,),
+                additional_wrappers=(forward,),
             )
 
 
 def make(name: str, **kwargs: Any) -> gym.Env[Any, Any]:
     """``gym.make`` with short names and one-line errors for unknown ids."""
-    return gym.make(resolve_env_id(name), **kwargs)
+    import gymnasium  # the sim extra: a missing one is named by the CLI
+
+    return gymnasium.make(resolve_env_id(name), **kwargs)
 
 
-register_all()
+if HAVE_GYMNASIUM:
+    register_all()
 
 __all__ = [
     "ENTRY_POINT",
