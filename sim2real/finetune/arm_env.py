@@ -32,7 +32,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -140,6 +142,15 @@ class _VirtualObject:
         return Percept(percept.tool_m, {**percept.objects, self.name: estimate})
 
 
+def training_reward(env_id: str, env_kwargs: Mapping[str, Any]) -> str | None:
+    """The reward name a policy's training env used (its id's registered kwargs, then the
+    run's own), or None for the task's default."""
+    import sim2real.envs  # noqa: F401 - registers the ids
+
+    reward = {**gym.spec(env_id).kwargs, **dict(env_kwargs)}.get("reward")
+    return None if reward is None else str(reward)
+
+
 def _no_policy(obs: Any) -> np.ndarray:
     raise AssertionError("ArmEnv's loop never runs a policy: the learner acts through step()")
 
@@ -241,6 +252,37 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.estops: list[str] = []  # e-stops (watchdog, faults) that a reset recovered from
         self._idle_stop = threading.Event()
         self._idle: threading.Thread | None = None
+
+    @classmethod
+    def for_policy(
+        cls,
+        policy_ref: str | Path,
+        spec: ArmSpec,
+        opts: DeployOptions,
+        config: ArmEnvConfig | None = None,
+        human: HumanKeys | None = None,
+    ) -> ArmEnv:
+        """The env a policy (a run dir, an exported file or a shipped name) was trained for,
+        on this arm: checked against the arm spec and the policy's control rate as ``deploy``
+        checks them, with the reward its training env used unless ``config`` names one."""
+        from sim2real.deploy.policy_io import policy_io
+        from sim2real.export.policy import load_policy
+        from sim2real.policies import resolve_policy
+
+        meta = load_policy(resolve_policy(policy_ref)).meta
+        meta.check_spec(spec.fingerprint())
+        io = policy_io(spec, meta)
+        config = config or ArmEnvConfig(rate_hz=meta.control_hz)
+        if abs(meta.control_hz - config.rate_hz) > 1e-9:
+            raise ConfigError(
+                f"policy {meta.source!r} was trained at {meta.control_hz:g} Hz; run its env at "
+                f"that rate, not {config.rate_hz:g} Hz"
+            )
+        if config.reward is None:
+            config = dataclasses.replace(
+                config, reward=training_reward(meta.env_id, meta.env_kwargs)
+            )
+        return cls(io, spec, opts, config, human)
 
     # ---- gymnasium API ---------------------------------------------------------------------
     def reset(
