@@ -164,7 +164,8 @@ class LinearSchedule:
         self.start = start
 
     def __call__(self, progress_remaining: float) -> float:
-        return progress_remaining * self.start
+        # SB3 overshoots the budget by up to one rollout: never a negative learning rate
+        return max(progress_remaining, 0.0) * self.start
 
 
 def _schedule(value: Any) -> Any:

@@ -74,6 +74,8 @@ def test_overrides_reach_any_field_and_default_to_hyperparams() -> None:
     cfg = resolve_config("reach", "ppo", "unused", overrides=["learning_rate=lin_3e-4"])
     assert cfg.hyperparams["learning_rate"] == "lin_3e-4"
     assert LinearSchedule(3e-4)(1.0) == 3e-4 and LinearSchedule(3e-4)(0.5) == 1.5e-4
+    # SB3 runs past the budget by up to one rollout (progress < 0): the rate stays at 0
+    assert LinearSchedule(3e-4)(-0.001) == 0.0
 
 
 @pytest.mark.parametrize(
