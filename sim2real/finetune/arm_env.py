@@ -21,7 +21,10 @@ of the tool), and pick waits until the cube is seen and still. ``close()`` parks
 torque off and releases every process, thread and port the backend opened.
 
 The learner must keep ``step`` coming at the control rate: gradient updates belong off this
-thread (the arm's watchdog e-stops an arm left without commands).
+thread (the arm's watchdog e-stops an arm left without commands), and the stepping thread
+belongs at the deploy loop's priority (``deploy.realtime.control_thread_priority``, as
+``run_policy`` runs the loop): at normal priority the mock arm's real-time process and the rest
+of the machine preempt it (bench/arm_env_timing.py, BENCHMARKS.md).
 """
 
 from __future__ import annotations
