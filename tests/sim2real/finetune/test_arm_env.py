@@ -194,6 +194,45 @@ def test_a_virtual_reach_target_is_judged_against_the_tool(
         env.close()
 
 
+def test_on_a_world_nobody_simulates_reach_has_a_virtual_target_and_a_reset_key(
+    spec: ArmSpec,
+    reach_io: PolicyIO,
+    monkeypatch: pytest.MonkeyPatch,
+    pty_keys: tuple[int, HumanKeys],
+) -> None:
+    """A real arm's world (``CameraWorld``: it places nothing and knows no truth), here around
+    SimArm physics whose tool a perfect sensor reports: the env draws a virtual target, judges
+    on the estimates, and waits for a person's reset key by default when keys are given."""
+    import contextlib
+
+    from sim2real.deploy.runner import BACKENDS
+    from sim2real.deploy.worlds import CameraWorld
+
+    def real_arm_world(
+        spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
+    ) -> tuple[object, object, object]:
+        arm, perception, _ = BACKENDS["sim"](spec, io, opts, stack)
+        return arm, perception, CameraWorld()
+
+    monkeypatch.setitem(BACKENDS, "sim-camera-world", real_arm_world)
+    master, keys = pty_keys
+    os.write(master, b"r")  # the person has already set the table
+    _wait(lambda: bool(keys.interventions), "the reset key")
+    env = ArmEnv(reach_io, spec, DeployOptions(backend="sim-camera-world"), human=keys)
+    try:
+        assert env.virtual is not None and env.confirm_reset
+        obs, info = env.reset(seed=21)
+        target = info["virtual_target_m"]
+        act, truncated = ik_reach(spec, reach_io), False
+        while not truncated:
+            obs, _, _, truncated, info = env.step(act(obs))
+        assert info["judged_on"] == "estimate" and info["is_success"], info
+        tool = env.arm.tool_position()  # type: ignore[attr-defined]
+        assert np.linalg.norm(tool - target) < 0.01
+    finally:
+        env.close()
+
+
 def test_pick_starts_from_the_cube_it_sees_and_refuses_mujoco_shaping(
     spec: ArmSpec, pick_io: PolicyIO
 ) -> None:
