@@ -211,6 +211,13 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
                     )
                 self.virtual = _VirtualObject(world, perception, VIRTUAL_OBJECTS[io.task])
                 world, perception = self.virtual, self.virtual
+            self.confirm_reset = (
+                config.confirm_reset
+                if config.confirm_reset is not None
+                else human is not None and not world.places_objects
+            )
+            if self.confirm_reset and human is None:
+                raise ConfigError("confirm_reset needs HumanKeys (the reset key)")
         except BaseException:
             self._stack.close()
             raise
@@ -220,13 +227,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.loop = DeployLoop(arm, perception, world, _no_policy, io, config.loop_config())
         if human is not None and human.on_estop is None:
             human.on_estop = arm.estop  # the key stops the arm at once, from the key thread
-        self.confirm_reset = (
-            config.confirm_reset
-            if config.confirm_reset is not None
-            else human is not None and not world.places_objects
-        )
-        if self.confirm_reset and human is None:
-            raise ConfigError("confirm_reset needs HumanKeys (the reset key)")
+            self._stack.callback(setattr, human, "on_estop", None)  # not past close()
 
         # Real time and real sensors: the same seed places the same objects, but no two runs
         # observe the same thing. The spec says so (check_env then skips its replay checks) and

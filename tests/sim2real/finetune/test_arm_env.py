@@ -391,3 +391,12 @@ def test_the_training_reward_comes_from_the_env_id_then_the_run() -> None:
     assert training_reward("Sim2Real/Arm3Reach-v0", {"reward": "squared"}) == "squared"
     with pytest.raises(UnknownNameError, match="'nope'; valid: distance, sparse, squared"):
         ArmEnvConfig(reward="nope")
+
+
+def test_bad_settings_are_one_line_errors(spec: ArmSpec, reach_io: PolicyIO) -> None:
+    with pytest.raises(ConfigError, match="confirm_reset needs HumanKeys"):
+        ArmEnv(reach_io, spec, SIM, ArmEnvConfig(confirm_reset=True))
+    with pytest.raises(ConfigError, match="rate_hz 1000"):
+        ArmEnvConfig(rate_hz=1000)
+    with pytest.raises(ConfigError, match="blind_timeout_s 0"):
+        ArmEnvConfig(blind_timeout_s=0)
