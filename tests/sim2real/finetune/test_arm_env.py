@@ -110,6 +110,31 @@ def test_check_env_passes_on_the_mock_backend_over_a_pty(spec: ArmSpec, reach_io
     _wait(lambda: _children() <= children, "the mock's processes end")
 
 
+def test_cameras_that_stop_mid_run_leave_the_arm_parked_and_torque_off(
+    spec: ArmSpec, reach_io: PolicyIO
+) -> None:
+    """A fault in the middle of learning (the mock's cameras freeze a few seconds in): the env
+    raises one line, and the arm was held, parked and switched off before it did."""
+    from hardware.errors import HardwareError
+
+    opts = DeployOptions(camera_fails_after_s=4.0, camera_timeout_s=1.0, **MOCK)
+    env = ArmEnv(reach_io, spec, opts, ArmEnvConfig(start_timeout_s=60))
+    try:
+        with pytest.raises(HardwareError, match="cameras stopped delivering frames") as err:
+            deadline = time.monotonic() + HANG_S
+            env.reset(seed=0)  # the freeze may already stop the reset: the same safe stop
+            while time.monotonic() < deadline:
+                _, _, _, truncated, _ = env.step(env.action_space.sample())
+                if truncated:
+                    env.reset()
+        assert "\n" not in str(err.value).strip()
+        assert not env.arm.is_enabled
+        last = env.arm.last_sent_rad
+        assert last is not None and _parked(spec, last)
+    finally:
+        env.close()
+
+
 def test_the_safety_filter_runs_exactly_once_per_step(
     reach_env: ArmEnv, monkeypatch: pytest.MonkeyPatch
 ) -> None:
