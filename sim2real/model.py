@@ -409,7 +409,7 @@ def finger_m_to_gripper_rad(spec: ArmSpec, finger_m: float) -> float:
     g = spec.gripper
     if g is None:
         raise ConfigError(f"spec {spec.name!r} has no gripper")
-    frac = float(np.clip(2 * finger_m / g.max_gap_m, 0.0, 1.0))
+    frac = float(min(max(2 * finger_m / g.max_gap_m, 0.0), 1.0))  # np.clip: 10x on a scalar
     return g.closed_rad + frac * (g.open_rad - g.closed_rad)
 
 

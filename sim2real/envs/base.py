@@ -271,6 +271,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._steps = 0
         self.dr_params: dict[str, Any] = {}
         self._points_buf = np.zeros((1 + self.task.n_points, 3))
+        self._readings_buf = np.zeros(self._n_readings)  # sense(): the sensors copy it
         self._not_blind = np.zeros(self.task.n_points)
         # Pixel variants report the true state in info["privileged_state"], for training-only
         # critics and teachers (sim2real.train); the observation never holds it.
@@ -318,7 +319,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         a = np.minimum(np.maximum(action, -1.0), 1.0)
-        self._targets = self.decoder.decode(a, self._targets)
+        self._targets = self.decoder.decode_clipped(a, self._targets)
         n = self.spec_arm.n_joints
         joint_ctrl = self.actuation(self._targets[:n], self.np_random)
         self._write_ctrl(joint_ctrl)
@@ -424,8 +425,11 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
     def sense(self) -> Sensed:
         rng = self.np_random
         q = self.data.qpos[self._qadr]
-        if self.task.uses_gripper:
-            q = np.append(q, self.gripper_angle_rad())
+        if self.task.uses_gripper:  # joints, then the gripper: filled in place, not appended
+            q_buf = self._readings_buf
+            q_buf[:-1] = q
+            q_buf[-1] = self.gripper_angle_rad()
+            q = q_buf
         pts = self._points_buf
         pts[0] = self.data.site_xpos[self._tool_site]
         pts[1:] = self.task.true_points(self)
