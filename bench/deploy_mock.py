@@ -91,6 +91,17 @@ def main() -> None:
         default=None,
         help="timing run: the host's sys.setswitchinterval in s (default 0.005)",
     )
+    parser.add_argument(
+        "--no-mock-realtime",
+        action="store_true",
+        help="timing run: the mock arm's process at normal priority (default: SCHED_FIFO)",
+    )
+    parser.add_argument(
+        "--mock-switch-interval",
+        type=float,
+        default=None,
+        help="timing run: the mock arm process's GIL switch interval in s (default 0.005)",
+    )
     args = parser.parse_args()
     backends = [b for b in args.backends.split(",") if b]
     spec = load_spec()
@@ -128,14 +139,25 @@ def main() -> None:
             timing_opts = DeployOptions(backend="mock", realtime=not args.no_realtime)
             if args.mock_nice is not None:
                 timing_opts = dataclasses.replace(timing_opts, mock_nice=args.mock_nice)
+            timing_opts = dataclasses.replace(
+                timing_opts,
+                mock_switch_interval_s=args.mock_switch_interval,
+                mock_realtime=not args.no_mock_realtime,
+            )
             variant = {"realtime": timing_opts.realtime, "mock_nice": timing_opts.mock_nice,
-                       "switch_interval_s": args.switch_interval or sys.getswitchinterval()}  # fmt: skip
+                       "mock_realtime": timing_opts.realtime and timing_opts.mock_realtime,
+                       "switch_interval_s": args.switch_interval or sys.getswitchinterval(),
+                       "mock_switch_interval_s": args.mock_switch_interval or 0.005}  # fmt: skip
             before = sys.getswitchinterval()
             if args.switch_interval is not None:
                 sys.setswitchinterval(args.switch_interval)
             try:
                 with busy_core():
                     res = deploy(ref, spec, timing_opts, LoopConfig(episodes=args.timing_episodes))
+            except Exception as exc:  # a stop is a result too (a watchdog trip, a lost reply)
+                emit("timing_busy_core_failed", str(exc).splitlines()[0], "", policy=ref,
+                     variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
+                continue
             finally:
                 sys.setswitchinterval(before)
             s = res.summary()

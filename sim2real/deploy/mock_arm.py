@@ -9,8 +9,8 @@ device applied, an unplugged cable). The scene state goes to the free-running ca
 process through their shared state block.
 
 Why a process: in the host, the emulator and physics threads shared the control loop's GIL and
-woke it late. Here they run at a lower priority (``nice``) than the host, as the render process
-does, and cannot hold its GIL.
+woke it late. Here they cannot hold its GIL, and the physics thread runs at a lower priority
+(``nice``) than the host, as the render process does.
 
 Lifecycle: ``MockArmProcess`` is a ``PtyDevice`` (a context manager; ``port`` is the pty). The
 child is stopped over the channel and killed if it does not exit; it exits by itself when the
@@ -64,8 +64,17 @@ class MockArmJob:
     emulator_config: EmulatorConfig = field(default_factory=EmulatorConfig)
     rig: RigSpec = field(default_factory=RigSpec)
     state_block: str | None = None  # the render process's scene state block, if any
-    nice: int = 5  # below the host: the arm yields to the control loop
+    # The physics thread runs below the host (it yields to the control loop); the emulator's
+    # thread keeps the process's priority: it answers the serial bytes, as a real arm's
+    # controller answers whatever its host is doing. ``nice`` lowers the whole process.
+    physics_nice: int = 5
+    nice: int = 0
     switch_interval_s: float | None = None  # the child's GIL switch interval (None: Python's)
+    # SCHED_FIFO for the whole process (every thread inherits it), below the host loop's
+    # CONTROL_PRIORITY: on a loaded machine the arm still answers its serial bytes, as a real
+    # arm's own controller does, and the physics thread, which holds the process's GIL, is not
+    # preempted by normal jobs while the emulator waits for it. None: normal scheduling.
+    realtime_priority: int | None = None
 
 
 def _one_line(exc: BaseException) -> str:
@@ -155,6 +164,8 @@ class MockArmProcess(PtyDevice):
             self.stop()
             raise
         self.device_path = str(self.info["port"])
+        if self.job.realtime_priority is not None and not self.info.get("realtime"):
+            log.warning("mock arm at normal priority: real-time scheduling refused")
         self._running = True
         return self.port
 
@@ -319,7 +330,7 @@ def _make_emulator(job: MockArmJob) -> Any:
     )
 
 
-def _serve(conn: Connection, truth_name: str, job: MockArmJob) -> None:
+def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -> None:
     from sim2real.deploy.render_process import SceneStatePublisher, attach_block
     from sim2real.deploy.worlds import MockPhysics
 
@@ -332,7 +343,9 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob) -> None:
         print(f"mock physics stopped: {_one_line(exc)}", file=sys.stderr, flush=True)
         os._exit(3)
 
-    physics = MockPhysics(job.plant.spec, job.scene, emulator, job.rig, on_error=die)
+    physics = MockPhysics(
+        job.plant.spec, job.scene, emulator, job.rig, on_error=die, thread_nice=job.physics_nice
+    )
     scene = None
     if job.state_block is not None:
         scene = SceneStatePublisher(job.state_block, physics.model.nq, physics.model.nmocap)
@@ -352,7 +365,8 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob) -> None:
         "true_positions_rad": lambda: np.asarray(emulator.true_positions_rad()),
         "stats": lambda: emulator.stats(),
     }
-    conn.send(("ok", {"port": emulator.port, "emulator": type(emulator).__name__}))
+    info = {"port": emulator.port, "emulator": type(emulator).__name__, "realtime": realtime}
+    conn.send(("ok", info))
     try:
         while True:
             try:
@@ -387,8 +401,13 @@ def main() -> None:
         os.nice(job.nice)
     if job.switch_interval_s is not None:
         sys.setswitchinterval(job.switch_interval_s)
+    realtime = False
+    if job.realtime_priority is not None:  # before any thread starts: they all inherit it
+        with contextlib.suppress(OSError, AttributeError):
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(job.realtime_priority))
+            realtime = True
     try:
-        _serve(conn, truth_name, job)
+        _serve(conn, truth_name, job, realtime)
     except Exception as exc:  # start-up failed: the host raises this line
         with contextlib.suppress(OSError):
             conn.send(("error", _one_line(exc)))

@@ -4,7 +4,8 @@ A control loop that wakes late jitters, whatever its own code costs. On Linux a 
 ``SCHED_FIFO`` runs as soon as it wakes, ahead of every normal process (a training run on the
 other core, the mock arm's process), as ros2_control's controller manager does. It needs root
 or an rtprio limit (``ulimit -r``, ``/etc/security/limits.conf``); without them the loop runs at
-normal priority and says so once.
+normal priority and says so once. A process started under ``nice`` (a test run, a batch job)
+asked for less, not more: it stays at normal priority.
 """
 
 from __future__ import annotations
@@ -19,6 +20,15 @@ log = logging.getLogger(__name__)
 CONTROL_PRIORITY = 50  # ros2_control's default for its real-time thread
 
 
+def niced() -> bool:
+    """Whoever started this process asked for a lower priority (``nice``, a test run): it is
+    not escalated to real-time."""
+    try:
+        return os.getpriority(os.PRIO_PROCESS, 0) > 0
+    except (OSError, AttributeError):
+        return False
+
+
 @contextlib.contextmanager
 def control_thread_priority(
     enabled: bool = True, priority: int = CONTROL_PRIORITY
@@ -27,7 +37,7 @@ def control_thread_priority(
     Yields whether it got it. (Linux schedules threads: pid 0 is the calling thread, and
     threads started inside the block inherit the policy, so start helpers before it.)"""
     setter = getattr(os, "sched_setscheduler", None)
-    if not enabled or setter is None:
+    if not enabled or setter is None or niced():
         yield False
         return
     try:

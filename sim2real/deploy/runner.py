@@ -41,7 +41,10 @@ class DeployOptions:
     camera_timeout_s: float | None = None  # None: 1 s for real cameras, 5 s for the mock's
     camera_fps: float = 30.0
     camera_nice: int = 10  # mock: the render process yields to the control loop
-    mock_nice: int = 5  # mock: the arm's process (emulator + physics) yields to it too
+    mock_nice: int = 5  # mock: the arm's physics thread yields to the control loop too
+    mock_switch_interval_s: float | None = None  # mock: the arm process's GIL switch interval
+    # mock, with realtime and the Python firmware: the arm's process at SCHED_FIFO below the loop
+    mock_realtime: bool = True
     # the control loop's thread at real-time priority (SCHED_FIFO) where the OS allows it
     realtime: bool = True
     camera_fails_after_s: float | None = None  # mock fault injection: the cameras hang
@@ -145,7 +148,9 @@ def _build_mock(
     job = MockArmJob(
         plant=plant, scene=scene, protocol=opts.protocol, firmware=opts.firmware,
         emulator_config=EmulatorConfig(**opts.emulator_options), rig=rig,
-        state_block=cameras.state_block, nice=opts.mock_nice,
+        state_block=cameras.state_block, physics_nice=opts.mock_nice,
+        switch_interval_s=opts.mock_switch_interval_s,
+        realtime_priority=_mock_priority(opts),
     )  # fmt: skip
     arm_process = stack.enter_context(MockArmProcess(job))
     world = MockWorld(arm_process, cameras)
@@ -175,6 +180,16 @@ def _build_mock(
         timer.start()
         stack.callback(timer.cancel)
     return arm, perception, world
+
+
+def _mock_priority(opts: DeployOptions) -> int | None:
+    """The mock arm's real-time priority, below the loop's; never for a firmware binary (its
+    simulator is a busy process, which would hold a core at real-time priority)."""
+    from sim2real.deploy.realtime import CONTROL_PRIORITY, niced
+
+    if opts.realtime and opts.mock_realtime and opts.firmware == "python" and not niced():
+        return CONTROL_PRIORITY - 10
+    return None
 
 
 def _check_firmware(opts: DeployOptions) -> None:

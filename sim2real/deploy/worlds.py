@@ -17,7 +17,10 @@ Placement and truth go through ``SceneObjects``, one name → MuJoCo mapping for
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -206,8 +209,11 @@ class MockPhysics:
         rig: RigSpec | None = None,
         sink: StateSink | None = None,
         on_error: Callable[[BaseException], None] | None = None,
+        thread_nice: int = 0,
     ) -> None:
-        """``spec`` is the arm as it really is (a plant's), not the policy's belief."""
+        """``spec`` is the arm as it really is (a plant's), not the policy's belief;
+        ``thread_nice``: the physics thread's niceness (Linux: per thread), below the
+        emulator's, which answers the serial bytes as a real arm's controller does."""
         self.spec = spec
         self.rig = rig or RigSpec()
         self.emulator = emulator
@@ -219,6 +225,7 @@ class MockPhysics:
         self.lock = threading.Lock()
         self.sink = sink
         self.on_error = on_error
+        self.thread_nice = thread_nice
         n = spec.n_joints
         self._n = n
         self._arm_dofs = np.append(self.twin.dofadr, self.model.joint(names.WRIST_JOINT).dofadr[0])
@@ -227,6 +234,7 @@ class MockPhysics:
         self._thread: threading.Thread | None = None
         self._blocked = False
         self._published_t = -np.inf
+        self._requests: queue.SimpleQueue[_Request] = queue.SimpleQueue()
         self.steps = 0
         self.error: BaseException | None = None
         self._make_arm_kinematic()
@@ -281,6 +289,9 @@ class MockPhysics:
         return -(j[1].sign * q_rad[1] + j[2].sign * q_rad[2])
 
     def _run(self) -> None:
+        if self.thread_nice:
+            with contextlib.suppress(OSError, AttributeError):  # Linux: a thread's own nice
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.thread_nice)
         dt = float(self.model.opt.timestep)
         t0 = time.monotonic()
         done = 0
@@ -305,9 +316,11 @@ class MockPhysics:
                     prev = q
                     done += behind
                     self._publish(now)
+                self._serve_requests()
                 time.sleep(max(0.0, t0 + (done + 1) * dt - time.monotonic()))
         except BaseException as exc:  # a dead world must stop the arm's process
             self.error = exc
+            self._serve_requests(exc)
             log.error("mock physics stopped: %s", exc)
             if self.on_error is not None:
                 self.on_error(exc)
@@ -354,17 +367,68 @@ class MockPhysics:
                 self.sink(self._published_t, self.data, self.truth())
 
     # ---- what the control channel asks --------------------------------------------------------
+    def _serve_requests(self, failed: BaseException | None = None) -> None:
+        while True:
+            try:
+                request = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            with self.lock:
+                request.run(failed)
+
+    def _in_physics(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` in the physics thread between two batches of steps. (Taking the lock from
+        another thread starves: a physics thread that is behind takes it back at once, and a
+        placement waited hundreds of milliseconds on a loaded machine.)"""
+        thread = self._thread
+        if thread is None or not thread.is_alive() or thread is threading.current_thread():
+            with self.lock:
+                fn()
+            return
+        request = _Request(fn)
+        self._requests.put(request)
+        while not request.done.wait(0.5):
+            if not thread.is_alive():
+                raise RuntimeError(f"mock physics stopped: {self.error}")
+        request.raise_error()
+
+    def _place(self, placement: dict[str, np.ndarray]) -> None:
+        self.objects.place(self.data, placement)
+        mujoco.mj_forward(self.model, self.data)
+
+    def _clear(self) -> None:
+        self.objects.clear(self.data)
+        mujoco.mj_forward(self.model, self.data)
+
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
-        with self.lock:
-            self.objects.place(self.data, placement)
-            mujoco.mj_forward(self.model, self.data)
+        self._in_physics(lambda: self._place(placement))
         self._publish(time.monotonic())
 
     def clear(self) -> None:
-        with self.lock:
-            self.objects.clear(self.data)
-            mujoco.mj_forward(self.model, self.data)
+        self._in_physics(self._clear)
         self._publish(time.monotonic())
+
+
+class _Request:
+    """One call the physics thread runs for another thread, which waits for it."""
+
+    def __init__(self, fn: Callable[[], None]) -> None:
+        self.fn, self.done = fn, threading.Event()
+        self.error: BaseException | None = None
+
+    def run(self, failed: BaseException | None) -> None:
+        try:
+            if failed is not None:
+                raise RuntimeError(f"mock physics stopped: {failed}") from failed
+            self.fn()
+        except BaseException as exc:
+            self.error = exc
+        finally:
+            self.done.set()
+
+    def raise_error(self) -> None:
+        if self.error is not None:
+            raise self.error
 
 
 class MockWorld:
