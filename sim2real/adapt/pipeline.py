@@ -145,6 +145,31 @@ class Adapter:
         self.spec = load_spec(opts.spec)
         self.status = self._load_status()
         self._check_inputs()
+        self._preload()
+
+    @staticmethod
+    def _preload() -> None:
+        """Import the stages' modules before the first stage starts. Observed: a Ctrl-C landing
+        in a stage's first imports (MuJoCo, SciPy) was handled cleanly, yet CPython then ended
+        the process by SIGINT at exit (a shell still shows 130; a parent's Popen sees -2).
+        Imported here, a stage spends its time in work, not imports. Torch and SB3 are left to
+        the fine-tune: they cost seconds, and a command that fails its input checks never
+        needs them."""
+        import importlib
+
+        for name in (
+            "yaml",
+            "hardware.joint_calibration",
+            "hardware.plant",
+            "hardware.serial_arm",
+            "sim2real.randomization",
+            "sim2real.sysid.fit",
+            "sim2real.sysid.kinematics",
+            "sim2real.sysid.record",
+            "sim2real.adapt.excite",
+            "sim2real.adapt.fitted",
+        ):
+            importlib.import_module(name)
 
     def _check_inputs(self) -> None:
         """Everything that can be wrong with the input, before the arm moves: the policy has a

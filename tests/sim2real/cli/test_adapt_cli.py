@@ -97,7 +97,9 @@ def test_adapt_interrupted_in_every_stage_keeps_finished_stages_and_continues(
         time.sleep(DELAY_S[stage])
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=600)
-        assert proc.returncode == 130, err[-3000:]
+        # 130, or ended by the SIGINT itself (-2, which a shell also shows as 130): CPython does
+        # that at exit when the interrupt landed in an import, after the clean stop was printed
+        assert proc.returncode in (130, -signal.SIGINT), err[-3000:]
         assert "interrupted (Ctrl-C)" in err
         done = _assert_whole(out)
         assert set(STAGES[:i]) <= set(done)  # every stage finished before is kept
