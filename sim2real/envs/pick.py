@@ -323,7 +323,7 @@ class PickTask(Task):
         lift goal): holding the cube 5 cm up, the shaping pays 1.0 per step against 0.5 on the
         table, and a cube knocked upwards without a grasp earns nothing from it."""
         v = env.ee_position() - self.cube_position(env)
-        reach = -REACH_WEIGHT_PER_M * math.sqrt(float(v @ v))  # np.linalg.norm, less overhead
+        reach = -REACH_WEIGHT_PER_M * math.sqrt(float(v.dot(v)))  # np.linalg.norm's bits
         if not self.is_grasped(env):
             return reach
         return reach + GRASP_BONUS + LIFT_WEIGHT_PER_M * self.lift_m(env)

@@ -20,6 +20,8 @@ Parameters (per episode, independent draws):
 
 from __future__ import annotations
 
+import math
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -77,6 +79,22 @@ class _Ids:
         )
 
 
+# Ids resolved once per model (a reset applies DR every episode); None: no arm3 linkage.
+_IDS: weakref.WeakKeyDictionary[mujoco.MjModel, _Ids | None] = weakref.WeakKeyDictionary()
+
+
+def _ids_of(model: mujoco.MjModel, ids: ModelIds) -> _Ids | None:
+    if model not in _IDS:
+        tendon = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, names.LEVEL_TENDON)
+        _IDS[model] = None if tendon < 0 else _Ids.of(model, ids)
+    return _IDS[model]
+
+
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a vector, the same bits (it is sqrt(v·v)) without its overhead."""
+    return math.sqrt(float(v.dot(v)))
+
+
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:
     """Independent draws per link, per joint and per tool axis."""
     n = len(ids.arm_dofs)
@@ -103,13 +121,13 @@ def _lengthen(
     grows by ``delta_m`` at the far end: centre moves by half, half-length grows by half."""
     half = 0.5 * delta_m
     centre = nominal["geom_pos"][geom]
-    direction = centre / np.linalg.norm(centre)
+    direction = centre / _norm(centre)
     model.geom_pos[geom] = centre + direction * half
     size = nominal["geom_size"][geom].copy()
     size[along] += half
     model.geom_size[geom] = size
     capsule = model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_CAPSULE
-    model.geom_rbound[geom] = size[0] + size[1] if capsule else np.linalg.norm(size)
+    model.geom_rbound[geom] = size[0] + size[1] if capsule else _norm(size)
     aabb = nominal["geom_aabb"][geom].copy()
     aabb[3 + 2 if along == 1 else 3 + along] += half  # capsule length (size[1]) is its local z
     model.geom_aabb[geom] = aabb
@@ -118,9 +136,9 @@ def _lengthen(
 def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
     """Write nominal + deltas (never compounds); the caller restored nominal before. A model
     without the arm3 twin's linkage (the Kuka grasp scene) has no hobby-arm geometry to vary."""
-    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, names.LEVEL_TENDON) < 0:
+    k = _ids_of(model, ids)
+    if k is None:
         return
-    k = _Ids.of(model, ids)
     links = np.asarray(params["link_length_delta_m"], dtype=float)
     offsets = np.asarray(params["joint_offset_rad"], dtype=float)
     tool = np.asarray(params["tool_offset_delta_m"], dtype=float)
@@ -132,7 +150,7 @@ def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: 
         _lengthen(model, nominal, int(geom), along, float(delta))
     for body, delta in zip(k.joint_bodies, links, strict=True):
         ipos = nominal["body_ipos"][body]
-        norm = np.linalg.norm(ipos)
+        norm = _norm(ipos)
         if norm > 0:
             model.body_ipos[body] = ipos + ipos / norm * 0.5 * delta
 
