@@ -9,8 +9,8 @@ device applied, an unplugged cable). The scene state goes to the free-running ca
 process through their shared state block.
 
 Why a process: in the host, the emulator and physics threads shared the control loop's GIL and
-woke it late. Here they cannot hold its GIL, and the physics thread runs at a lower priority
-(``nice``) than the host, as the render process does.
+woke it late. Here they cannot hold its GIL, and they run at a lower priority than the host's
+loop (``nice``, or real-time below the loop's where the loop has it), as the render process does.
 
 Lifecycle: ``MockArmProcess`` is a ``PtyDevice`` (a context manager; ``port`` is the pty). The
 child is stopped over the channel and killed if it does not exit; it exits by itself when the
@@ -64,11 +64,11 @@ class MockArmJob:
     emulator_config: EmulatorConfig = field(default_factory=EmulatorConfig)
     rig: RigSpec = field(default_factory=RigSpec)
     state_block: str | None = None  # the render process's scene state block, if any
-    # The physics thread runs below the host (it yields to the control loop); the emulator's
-    # thread keeps the process's priority: it answers the serial bytes, as a real arm's
-    # controller answers whatever its host is doing. ``nice`` lowers the whole process.
-    physics_nice: int = 5
-    nice: int = 0
+    # The whole process below the host: it yields to the control loop. One priority for all
+    # its threads: they share one GIL, and an emulator thread above a physics thread would wait
+    # for the GIL on a thread the machine's load keeps off the CPU (a second without a reply,
+    # measured under pytest on a loaded machine with the physics thread at +5).
+    nice: int = 5
     switch_interval_s: float | None = None  # the child's GIL switch interval (None: Python's)
     # SCHED_FIFO for the whole process (every thread inherits it), below the host loop's
     # CONTROL_PRIORITY: on a loaded machine the arm still answers its serial bytes, as a real
@@ -343,9 +343,7 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -
         print(f"mock physics stopped: {_one_line(exc)}", file=sys.stderr, flush=True)
         os._exit(3)
 
-    physics = MockPhysics(
-        job.plant.spec, job.scene, emulator, job.rig, on_error=die, thread_nice=job.physics_nice
-    )
+    physics = MockPhysics(job.plant.spec, job.scene, emulator, job.rig, on_error=die)
     scene = None
     if job.state_block is not None:
         scene = SceneStatePublisher(job.state_block, physics.model.nq, physics.model.nmocap)

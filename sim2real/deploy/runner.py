@@ -41,7 +41,7 @@ class DeployOptions:
     camera_timeout_s: float | None = None  # None: 1 s for real cameras, 5 s for the mock's
     camera_fps: float = 30.0
     camera_nice: int = 10  # mock: the render process yields to the control loop
-    mock_nice: int = 5  # mock: the arm's physics thread yields to the control loop too
+    mock_nice: int = 5  # mock: the arm's process (emulator + physics) yields to the loop too
     mock_switch_interval_s: float | None = None  # mock: the arm process's GIL switch interval
     # mock, with realtime and the Python firmware: the arm's process at SCHED_FIFO below the loop
     mock_realtime: bool = True
@@ -148,7 +148,7 @@ def _build_mock(
     job = MockArmJob(
         plant=plant, scene=scene, protocol=opts.protocol, firmware=opts.firmware,
         emulator_config=EmulatorConfig(**opts.emulator_options), rig=rig,
-        state_block=cameras.state_block, physics_nice=opts.mock_nice,
+        state_block=cameras.state_block, nice=opts.mock_nice,
         switch_interval_s=opts.mock_switch_interval_s,
         realtime_priority=_mock_priority(opts),
     )  # fmt: skip

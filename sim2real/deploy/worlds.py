@@ -17,9 +17,7 @@ Placement and truth go through ``SceneObjects``, one name → MuJoCo mapping for
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import os
 import queue
 import threading
 import time
@@ -209,11 +207,8 @@ class MockPhysics:
         rig: RigSpec | None = None,
         sink: StateSink | None = None,
         on_error: Callable[[BaseException], None] | None = None,
-        thread_nice: int = 0,
     ) -> None:
-        """``spec`` is the arm as it really is (a plant's), not the policy's belief;
-        ``thread_nice``: the physics thread's niceness (Linux: per thread), below the
-        emulator's, which answers the serial bytes as a real arm's controller does."""
+        """``spec`` is the arm as it really is (a plant's), not the policy's belief."""
         self.spec = spec
         self.rig = rig or RigSpec()
         self.emulator = emulator
@@ -225,7 +220,6 @@ class MockPhysics:
         self.lock = threading.Lock()
         self.sink = sink
         self.on_error = on_error
-        self.thread_nice = thread_nice
         n = spec.n_joints
         self._n = n
         self._arm_dofs = np.append(self.twin.dofadr, self.model.joint(names.WRIST_JOINT).dofadr[0])
@@ -289,9 +283,6 @@ class MockPhysics:
         return -(j[1].sign * q_rad[1] + j[2].sign * q_rad[2])
 
     def _run(self) -> None:
-        if self.thread_nice:
-            with contextlib.suppress(OSError, AttributeError):  # Linux: a thread's own nice
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.thread_nice)
         dt = float(self.model.opt.timestep)
         t0 = time.monotonic()
         done = 0
