@@ -99,7 +99,8 @@ def _write_truth(block: np.ndarray, t_s: float, truth: Any, steps: int) -> None:
 
 
 def _read_truth(block: np.ndarray) -> np.ndarray | None:
-    for _ in range(1000):
+    """A consistent copy, or None while the writer is busy (it may be preempted mid-write)."""
+    for _ in range(100):
         s1 = block[0]
         if s1 % 2 == 1:
             continue
@@ -129,6 +130,7 @@ class MockArmProcess(PtyDevice):
         self._final: dict[str, Any] = {}  # what the child said last (its log), for after stop
         self._truth_shm: shared_memory.SharedMemory | None = None
         self._truth: np.ndarray | None = None
+        self._last_truth: np.ndarray | None = None
         self.info: dict[str, Any] = {}
 
     # ---- lifecycle --------------------------------------------------------------------------
@@ -278,8 +280,11 @@ class MockArmProcess(PtyDevice):
         self.check_alive()
         assert self._truth is not None
         block = _read_truth(self._truth)
+        if block is None:  # the writer was preempted mid-write: the previous state is whole
+            block = self._last_truth
         if block is None or block[1] < 0.0:
             raise HardwareError("the mock arm process published no state")
+        self._last_truth = block
         objects = {}
         for i, key in enumerate(TRUTH_KEYS):
             o = _TRUTH_HEADER + 4 * i
