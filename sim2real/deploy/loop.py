@@ -339,7 +339,8 @@ class DeployLoop:
                         _sleep_until(next_t)
                     else:
                         next_t = time.perf_counter()  # do not try to catch up: it bursts
-                else:  # the last command has had one period to act (paced above): judge it
+                else:  # the last command gets one whole period to act, then it is judged
+                    _sleep_until(t4 + period)
                     reason = self._judge_last(contract, sent) or reason
                 blind += invalid
                 out = contract.outcome()
@@ -494,7 +495,7 @@ class DeployLoop:
         return view
 
     def _judge_last(self, contract: DeployContract, sent: np.ndarray | None) -> str | None:
-        """Judge the episode's last command one period after it (the loop paced that period)."""
+        """Judge the episode's last command on a view taken once it has had a period to act."""
         if sent is None:
             return None
         state = self.arm.read_state()
