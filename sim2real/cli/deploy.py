@@ -56,6 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="mock/sim only: a longer watchdog than the spec's, for a machine too loaded to "
         "hold it (tests); a real arm always keeps the spec's",
     )  # fmt: skip
+    parser.add_argument(
+        "--sim-clock", default="lockstep",
+        help="sim: lockstep (one control period of physics per command, as in training) or "
+        "realtime (physics runs on with the wall clock)",
+    )  # fmt: skip
     parser.add_argument("--dry-run", action="store_true", help="serial: read and log, send nothing")
     parser.add_argument("--log", type=Path, default=None, help="trajectory log (.npz)")
     parser.add_argument("--video", type=Path, default=None, help="mp4 of the left camera")
@@ -104,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         plant=args.plant,
         firmware=args.firmware,
         watchdog_s=args.watchdog_s,
+        sim_clock=args.sim_clock,
     )
     config = LoopConfig(
         rate_hz=args.rate,

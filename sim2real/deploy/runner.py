@@ -54,6 +54,10 @@ class DeployOptions:
     # than the spec's, for simulations on a machine too loaded to hold the real ones (tests
     # under pytest -n 2). A real arm keeps the spec's.
     watchdog_s: float | None = None
+    # sim: "lockstep" advances physics one control period per command, as the env steps, so
+    # the sim backend checks the deploy pipeline against the env whatever the machine's load;
+    # "realtime" lets physics run on with the wall clock, as a real arm does while the host thinks
+    sim_clock: str = "lockstep"
     emulator_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -71,6 +75,8 @@ class DeployOptions:
             raise ConfigError(f"--plant is for --backend mock, not {self.backend!r}")
         if self.firmware != "python" and self.backend != "mock":
             raise ConfigError(f"--firmware is for --backend mock, not {self.backend!r}")
+        if self.sim_clock not in SIM_CLOCKS:
+            raise UnknownNameError("sim clock", self.sim_clock, SIM_CLOCKS)
         if self.watchdog_s is not None and self.backend == "serial":
             raise ConfigError("--watchdog-s is for --backend mock|sim: a real arm keeps its spec's")
         if not 0 <= self.mock_nice <= 19:
@@ -91,7 +97,7 @@ def _build_sim(
     from sim2real.model import RigSpec
 
     scene = _scene(io)
-    arm = SimArm(spec, scene=scene, clock="realtime")
+    arm = SimArm(spec, scene=scene, clock=opts.sim_clock)
     stack.enter_context(arm)
     world = SimWorld(arm, RigSpec())
 
@@ -259,6 +265,7 @@ def _build_serial(
 
 
 PERCEPTIONS: tuple[str, ...] = ("cameras", "fk")
+SIM_CLOCKS: tuple[str, ...] = ("lockstep", "realtime")  # sim_arm.CLOCKS, without MuJoCo
 BACKENDS: dict[str, Builder] = {"sim": _build_sim, "mock": _build_mock, "serial": _build_serial}
 
 
