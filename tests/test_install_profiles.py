@@ -137,26 +137,42 @@ def test_a_command_of_another_profile_names_its_extra(lean_bin: Path, tmp_path: 
     assert len(lines) == 1 and "pip install 'sim2real[" in lines[0], res.stderr
 
 
+# The arm's 250 ms watchdog and 50 ms serial replies are the spec's (a serial backend never relaxes
+# them); on a machine loaded far beyond its cores, the emulator can miss them. Such a stop is
+# retried on a fresh emulator; any other failure fails at once.
+TIMING_STOPS = ("watchdog", "no reply from")
+DEPLOY_TRIES = 3
+
+
 def test_deploy_a_shipped_policy_in_the_deploy_profile(
     lean_bin: Path, tmp_path: Path, spawn: Callable[..., subprocess.Popen[Any]]
 ) -> None:
     """The issue's Raspberry Pi case: the shipped reach policy (ONNX, onnxruntime) drives the
     emulated bus over a pty, the tool found by forward kinematics, two episodes."""
-    link = tmp_path / "arm"
-    emulator = spawn(
-        [str(lean_bin / "sim2real"), "arm", "emulate", "--protocol", "s2r", "--link", str(link),
-         "--duration-s", "300"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_clean_env(),
-        cwd=tmp_path,
-    )  # fmt: skip
-    assert emulator.stdout is not None
-    assert emulator.stdout.readline().strip() == str(link)
-    res = subprocess.run(
-        [str(lean_bin / "sim2real"), "deploy", "reach-ppo", "--backend", "serial", "--port",
-         str(link), "--perception", "fk", "--episodes", "2", "--json"],
-        capture_output=True, text=True, env=_clean_env(), cwd=tmp_path, timeout=300,
-    )  # fmt: skip
-    assert res.returncode == 0, res.stderr + res.stdout
+    stops: list[str] = []
+    for attempt in range(DEPLOY_TRIES):
+        link = tmp_path / f"arm{attempt}"
+        emulator = spawn(
+            [str(lean_bin / "sim2real"), "arm", "emulate", "--protocol", "s2r", "--link",
+             str(link), "--duration-s", "300"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_clean_env(),
+            cwd=tmp_path,
+        )  # fmt: skip
+        assert emulator.stdout is not None
+        assert emulator.stdout.readline().strip() == str(link)
+        res = subprocess.run(
+            [str(lean_bin / "sim2real"), "deploy", "reach-ppo", "--backend", "serial", "--port",
+             str(link), "--perception", "fk", "--episodes", "2", "--json"],
+            capture_output=True, text=True, env=_clean_env(), cwd=tmp_path, timeout=300,
+        )  # fmt: skip
+        emulator.kill()
+        if res.returncode == 0:
+            break
+        said = res.stderr + res.stdout
+        assert any(t in said for t in TIMING_STOPS), said
+        stops.append(said.strip().splitlines()[-1])
+    else:
+        pytest.fail(f"{DEPLOY_TRIES} deploys stopped on the arm's timing: {stops}")
     summary = json.loads(res.stdout.strip().splitlines()[-1])
     assert summary["backend"] == "serial" and summary["task"] == "reach"
     assert summary["episodes"] == 2 and summary["stopped_early"] is None
