@@ -19,15 +19,38 @@ from sim2real.train.rundir import RunDir
 SPEC = load_spec()
 
 
+def onnx_only_shipping(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A shipping folder whose one policy is ONNX only (a card without ``checkpoint``), as the
+    policies were before they carried checkpoints."""
+    import json
+    import shutil
+
+    import sim2real.policies as policies
+
+    src = shipped()["reach-ppo"]
+    folder = tmp_path / "shipped"
+    folder.mkdir()
+    shutil.copy(src.path, folder / "old-ppo.onnx")
+    card = json.loads((src.path.with_suffix(".json")).read_text())
+    card.pop("checkpoint")
+    card["file"] = "old-ppo.onnx"
+    (folder / "old-ppo.json").write_text(json.dumps(card))
+    monkeypatch.setattr(policies, "SHIPPED_DIR", folder)
+    return folder
+
+
 @pytest.mark.parametrize(
     ("ref", "says"),
     [
-        ("trace-ppo", "carries no SB3 checkpoint"),
+        ("old-ppo", "carries no SB3 checkpoint"),
         ("no-such-policy", "does not exist"),
         (str(shipped()["reach-ppo"].path), "is an exported file"),
     ],
 )
-def test_a_policy_without_a_checkpoint_is_refused_in_one_line(ref: str, says: str) -> None:
+def test_a_policy_without_a_checkpoint_is_refused_in_one_line(
+    ref: str, says: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    onnx_only_shipping(tmp_path, monkeypatch)
     with pytest.raises(Sim2RealError, match=says) as info:
         resolve_source(ref)
     assert "\n" not in str(info.value)

@@ -188,10 +188,13 @@ def test_logs_without_marker_observations_are_refused(
 
 
 def test_policies_adapt_cannot_fine_tune_are_refused(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from tests.sim2real.adapt.test_checkpoint import onnx_only_shipping
+
     out = tmp_path / "adapt"
-    _one_line_error(capsys, ["adapt", "trace-ppo", "--out", str(out)], "no SB3 checkpoint")
+    onnx_only_shipping(tmp_path, monkeypatch)  # one shipped policy without a checkpoint
+    _one_line_error(capsys, ["adapt", "old-ppo", "--out", str(out)], "no SB3 checkpoint")
     _one_line_error(capsys, ["adapt", "nope", "--out", str(out)], "does not exist")
     _one_line_error(
         capsys, ["adapt", "reach-ppo", "--backend", "serial", "--out", str(out)], "--port"
