@@ -122,13 +122,29 @@ def vecnormalize_stats(vn: Any) -> dict[str, Any]:
     }
 
 
+def _no_machine_paths(config: dict[str, Any]) -> dict[str, Any]:
+    """The config with every absolute path (run dir, spec or DR file) cut to its last part: a
+    shipped file must not carry the shipping machine's paths, and a fine-tune replaces them."""
+
+    def scrub(value: Any) -> Any:
+        if isinstance(value, dict):
+            return {k: scrub(v) for k, v in value.items()}
+        if isinstance(value, list):
+            return [scrub(v) for v in value]
+        if isinstance(value, str) and Path(value).is_absolute():
+            return Path(value).name
+        return value
+
+    return dict(scrub(config))
+
+
 def train_stats_text(config: dict[str, Any], steps: int, segments: int, vn: Any | None) -> str:
     """``<name>.train.json`` of a shipped policy: what a fine-tune needs beside the .zip."""
     body = {
         "format": TRAIN_STATS_FORMAT,
         "steps": int(steps),
         "segments": int(segments),
-        "config": config,
+        "config": _no_machine_paths(config),
         "vecnormalize": None if vn is None else vecnormalize_stats(vn),
     }
     return json.dumps(body, indent=1) + "\n"

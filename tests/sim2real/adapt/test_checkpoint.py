@@ -83,3 +83,20 @@ def test_the_shipped_checkpoint_is_the_shipped_policy_and_fine_tunes(tmp_path: P
     assert res.steps_done >= src.steps + 2048
     assert rd.read_status()["finished"] and rd.model_path.is_file()
     assert max_action_diff(run, shipped_onnx, sample_observations(run, 300)) > 1e-6  # it trained
+
+
+def test_shipped_training_stats_carry_no_machine_paths() -> None:
+    """A shipped file must not name the shipping machine's folders."""
+    from sim2real.adapt.checkpoint import train_stats_text
+
+    config = {
+        "train": {"run_dir": "/home/someone/runs/x", "dr": "default"},
+        "dr_source": "/a/b.yaml",
+    }
+    text = train_stats_text(config, 10, 1, None)
+    assert "/home/someone" not in text and "/a/b.yaml" not in text and '"x"' in text
+    for pol in shipped().values():
+        if pol.checkpoint is None:
+            continue
+        stats = pol.checkpoint[1].read_text()
+        assert '": "/' not in stats, pol.name  # no absolute path in any value
