@@ -13,7 +13,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-from collections.abc import Iterator
+import threading
+from collections.abc import Iterator, Sequence
 
 log = logging.getLogger(__name__)
 
@@ -31,11 +32,16 @@ def niced() -> bool:
 
 @contextlib.contextmanager
 def control_thread_priority(
-    enabled: bool = True, priority: int = CONTROL_PRIORITY
+    enabled: bool = True,
+    priority: int = CONTROL_PRIORITY,
+    helpers: Sequence[threading.Thread] = (),
 ) -> Iterator[bool]:
     """The calling thread at ``SCHED_FIFO`` ``priority`` inside the block, restored after.
     Yields whether it got it. (Linux schedules threads: pid 0 is the calling thread, and
-    threads started inside the block inherit the policy, so start helpers before it.)"""
+    threads started inside the block inherit the policy, so start others before it.)
+    ``helpers``: threads on the loop's own path that it waits for (the serial link's reader,
+    which wakes it when a reply arrives), raised with it: a loop at real-time priority that
+    waits on a normal thread waits as long as the machine's load keeps that thread off the CPU."""
     setter = getattr(os, "sched_setscheduler", None)
     if not enabled or setter is None or niced():
         yield False
@@ -43,6 +49,12 @@ def control_thread_priority(
     try:
         before = os.sched_getscheduler(0), os.sched_getparam(0)
         setter(0, os.SCHED_FIFO, os.sched_param(priority))
+        raised = []
+        for thread in helpers:
+            tid = thread.native_id
+            if tid is not None and thread.is_alive():
+                raised.append((tid, os.sched_getscheduler(tid), os.sched_getparam(tid)))
+                setter(tid, os.SCHED_FIFO, os.sched_param(priority))
     except OSError as exc:
         log.warning(
             "control loop at normal priority: real-time scheduling refused (%s); run as root "
@@ -56,3 +68,6 @@ def control_thread_priority(
     finally:
         with contextlib.suppress(OSError):
             setter(0, before[0], before[1])
+        for tid, policy, param in raised:
+            with contextlib.suppress(OSError):  # a thread that ended meanwhile
+                setter(tid, policy, param)

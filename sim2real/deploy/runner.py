@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -344,8 +345,11 @@ def run_policy(
             obs_keys=obs_keys,
             on_episode=None if recorder is None else recorder.on_episode,
         )
+        # the serial link's reader wakes the loop when a reply arrives: it is on the loop's path
+        reader = getattr(getattr(arm, "link", None), "_thread", None)
+        helpers = [reader] if isinstance(reader, threading.Thread) else []
         try:
-            with control_thread_priority(opts.realtime):  # helpers started before: not theirs
+            with control_thread_priority(opts.realtime, helpers=helpers):
                 result = loop.run()
         except BaseException:
             if recorder is not None:  # nothing half-written: the episodes so far are dropped
