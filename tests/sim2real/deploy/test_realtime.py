@@ -21,11 +21,20 @@ if sys.argv[1:] == ["deny"]:  # the OS refuses, as it does without root or an rt
         raise PermissionError(1, "Operation not permitted")
     os.sched_setscheduler = refuse
 logging.basicConfig(level=logging.WARNING, format="%(message)s")
+import threading
 from sim2real.deploy.realtime import control_thread_priority
-with control_thread_priority() as got:
+stop = threading.Event()
+reader = threading.Thread(target=stop.wait)  # a helper the loop waits on (a serial reader)
+reader.start()
+with control_thread_priority(helpers=[reader]) as got:
     inside = os.sched_getscheduler(0)
+    helper_inside = os.sched_getscheduler(reader.native_id)
 after = os.sched_getscheduler(0)
-print(json.dumps({"got": got, "inside": inside, "after": after, "fifo": os.SCHED_FIFO}))
+helper_after = os.sched_getscheduler(reader.native_id)
+stop.set()
+reader.join()
+print(json.dumps({"got": got, "inside": inside, "after": after, "fifo": os.SCHED_FIFO,
+                  "helper_inside": helper_inside, "helper_after": helper_after}))
 """
 
 
@@ -47,11 +56,13 @@ def test_the_loop_thread_gets_fifo_where_allowed_and_gives_it_back() -> None:
     out, _ = _probe(preexec_fn=lambda: _at_nice(0))
     assert out["got"] is True
     assert out["inside"] == out["fifo"] and out["after"] != out["fifo"]
+    assert out["helper_inside"] == out["fifo"] and out["helper_after"] != out["fifo"]
 
 
 def test_a_niced_process_stays_at_normal_priority() -> None:
     out, err = _probe(preexec_fn=lambda: _at_nice(max(5, os.getpriority(os.PRIO_PROCESS, 0))))
     assert out["got"] is False and out["inside"] != out["fifo"]
+    assert out["helper_inside"] != out["fifo"]
     assert err == ""  # asked for less: nothing to warn about
 
 
