@@ -210,8 +210,10 @@ def test_success_is_judged_after_the_last_command_has_acted(
     """A policy that waits ~2 cm short of the target and covers the rest with its very last
     command: a success only if the loop judges that command once it has had its period to act
     (the env judges a step after its physics). Judged right after it is sent, the tool is still
-    ~2 cm away. Real MuJoCo on the real-time clock; no timing is asserted (a slow machine only
-    gives the servos longer)."""
+    ~2 cm away. Real MuJoCo on the real-time clock, where physics runs on while the host thinks,
+    as on a mock or real arm (the lockstep clock steps a period inside ``command``); no timing is
+    asserted: the loop waits a whole period after the last command, and a slow machine only gives
+    the servos longer."""
     steps, n, max_delta = 25, spec.n_joints, reach_io.decoder.max_delta_rad
     sl = {f.name: slice(f.start, f.stop) for f in reach_io.builder.layout()}
     lo = np.array([j.lower_rad for j in spec.joints])
@@ -238,7 +240,7 @@ def test_success_is_judged_after_the_last_command_has_acted(
         return np.clip((q_des - q_cmd) / max_delta, -1.0, 1.0)
 
     result = run_policy(
-        policy, reach_io, spec, DeployOptions(backend="sim"),
+        policy, reach_io, spec, DeployOptions(backend="sim", sim_clock="realtime"),
         LoopConfig(episodes=2, episode_steps=steps, rate_hz=10.0),
     )  # fmt: skip
     assert len(short_of_target_m) == 2 and min(short_of_target_m) > 0.015, short_of_target_m
