@@ -117,7 +117,9 @@ def main() -> None:
         rates = {}
         for backend in backends:
             t0 = time.perf_counter()
-            opts = DeployOptions(backend=backend, watchdog_s=args.watchdog_s)
+            # sim on the lockstep clock: one period of physics per command, as the env steps, so
+            # sim/env measures the deploy pipeline and not this machine's load
+            opts = DeployOptions(backend=backend, watchdog_s=args.watchdog_s, sim_clock="lockstep")
             res = deploy(ref, spec, opts, LoopConfig(episodes=args.episodes))
             s = res.summary()
             rates[backend] = s["success_rate"]

@@ -57,9 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "hold it (tests); a real arm always keeps the spec's",
     )  # fmt: skip
     parser.add_argument(
-        "--sim-clock", default="lockstep",
-        help="sim: lockstep (one control period of physics per command, as in training) or "
-        "realtime (physics runs on with the wall clock)",
+        "--sim-clock", default="realtime",
+        help="sim: realtime (physics runs on with the wall clock) or lockstep (one control "
+        "period of physics per command, as in training, whatever the machine's load)",
     )  # fmt: skip
     parser.add_argument("--dry-run", action="store_true", help="serial: read and log, send nothing")
     parser.add_argument("--log", type=Path, default=None, help="trajectory log (.npz)")

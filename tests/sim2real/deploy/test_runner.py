@@ -21,7 +21,7 @@ from .conftest import ik_policy  # type: ignore[import-not-found]
 
 def test_the_sim_clocks_are_the_sim_arms_and_a_bad_one_is_named() -> None:
     assert SIM_CLOCKS == sim_arm.CLOCKS
-    assert DeployOptions(backend="sim").sim_clock == "lockstep"
+    assert DeployOptions(backend="sim").sim_clock == "realtime"
     with pytest.raises(UnknownNameError, match="'wall'"):
         DeployOptions(backend="sim", sim_clock="wall")
 
@@ -46,7 +46,7 @@ def test_lockstep_sim_deploys_do_not_depend_on_how_slow_the_host_is(
 
         log = tmp_path / f"run{stall_s}.npz"
         run_policy(
-            slow, reach_io, spec, DeployOptions(backend="sim"),
+            slow, reach_io, spec, DeployOptions(backend="sim", sim_clock="lockstep"),
             LoopConfig(episodes=1, seed=3), log_path=log,
         )  # fmt: skip
         runs.append(np.load(log))
