@@ -18,6 +18,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from hardware.safety import SafetyFilter
 from hardware.spec import ArmSpec, load_spec
 from sim2real.actuation import ServoActuation
 from sim2real.envs.contract import DeployContract
@@ -190,6 +191,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         render_mode: str | None = None,
         render_width: int = 640,
         render_height: int = 480,
+        safety_filter: bool = False,
     ) -> None:
         if task not in TASKS:
             raise UnknownNameError("task", task, TASKS)
@@ -229,6 +231,11 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._qadr = self.twin.qadr
         self._tool_site = self.twin.tool_site
         self.decoder = ActionDecoder(spec, max_delta_rad, use_gripper=self.task.uses_gripper)
+        # Train as deployed: the host's safety filter (limits, the per-step clamp, gripper
+        # included, and the workspace guard) between the decoded targets and the servos, as
+        # ``Arm.command`` puts it on every backend. Without it a pick policy learns to snap the
+        # gripper shut in one step and to push the tool below the guard's floor.
+        self._safety = SafetyFilter(spec) if safety_filter else None
         self._n_readings = n_j + (1 if self.task.uses_gripper else 0)
         self._n_act = self.decoder.n_actions
         self.actuation = ServoActuation(spec, self.control_dt_s, n_j)
@@ -267,6 +274,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._frame_renderer: FastRenderer | None = None
         self._render_wh = (render_width, render_height)
         self._targets = spec.actuator_home_rad.copy()
+        self._sent = self._targets.copy()
         self._prev_action = np.zeros(self._n_act)
         self._steps = 0
         self.dr_params: dict[str, Any] = {}
@@ -301,6 +309,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         )
         self._targets = spec.actuator_home_rad.copy()
         self._targets[: spec.n_joints] = q0
+        self._sent = self._targets.copy()
         self._set_arm_qpos(q0)
         self.actuation.reset(q0)
         self._write_ctrl(q0)
@@ -321,7 +330,11 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         a = np.minimum(np.maximum(action, -1.0), 1.0)
         self._targets = self.decoder.decode_clipped(a, self._targets)
         n = self.spec_arm.n_joints
-        joint_ctrl = self.actuation(self._targets[:n], self.np_random)
+        if self._safety is None:
+            self._sent = self._targets
+        else:
+            self._sent = self._safety.filter(self._targets, self._sent)
+        joint_ctrl = self.actuation(self._sent[:n], self.np_random)
         self._write_ctrl(joint_ctrl)
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         self.task.after_step(self)
@@ -373,6 +386,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         reads as if the policy had been holding: joint deltas 0, gripper closed (-1)."""
         targets = self.task.held_start(self, rng, height_m)
         self._targets = np.array(targets, dtype=float)
+        self._sent = self._targets.copy()
         self.actuation.reset(self._targets[: self.spec_arm.n_joints])
         self._write_ctrl(self._targets[: self.spec_arm.n_joints])
         self._prev_action = np.zeros(self._n_act)
@@ -404,7 +418,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         return self._targets
 
     def _gripper_target(self) -> float | None:
-        return float(self._targets[-1]) if self.twin.has_gripper else None
+        return float(self._sent[-1]) if self.twin.has_gripper else None
 
     def _set_arm_qpos(self, q_rad: np.ndarray) -> None:
         self.twin.set_pose(self.data, q_rad, self._gripper_target())
