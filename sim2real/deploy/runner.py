@@ -56,8 +56,8 @@ class DeployOptions:
     # under pytest -n 2). A real arm keeps the spec's.
     watchdog_s: float | None = None
     # sim: "realtime" lets physics run on with the wall clock, as a real arm does while the host
-    # thinks; "lockstep" advances it one control period per command, as the env steps, so a
-    # sim-vs-env comparison measures the deploy pipeline whatever the machine's load (bench)
+    # thinks; "lockstep" advances it one control period per command, as the env steps, whatever
+    # the machine's load (known issue: homing after a grasp can jam the simulated fingers there)
     sim_clock: str = "realtime"
     emulator_options: dict[str, Any] = field(default_factory=dict)
 
