@@ -18,33 +18,17 @@ Per policy (a shipped name or a run dir), JSON lines:
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
-import json
 import os
 import platform
-import subprocess
 import sys
 import time
-from collections.abc import Iterator
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from support.load import busy_core, emit
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-
-
-def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
-
-
-@contextlib.contextmanager
-def busy_core() -> Iterator[None]:
-    """Another process keeping one core busy (a training run beside the arm)."""
-    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-    try:
-        yield
-    finally:
-        proc.kill()
-        proc.wait()
 
 
 def wilson(k: int, n: int) -> list[float]:

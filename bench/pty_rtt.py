@@ -15,34 +15,19 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import platform
 import socket
-import subprocess
 import sys
 import threading
 import time
 import tty
-from collections.abc import Iterator
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np
+from support.load import busy_core, emit
 
 FRAME = b"x" * 20  # about an s2r state reply
-
-
-def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
-
-
-@contextlib.contextmanager
-def busy_core() -> Iterator[None]:
-    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-    try:
-        yield
-    finally:
-        proc.kill()
-        proc.wait()
 
 
 def _fifo(priority: int) -> bool:
