@@ -197,6 +197,8 @@ class PickTask(Task):
         self.rest_z_m = 0.0  # cube centre height resting on the table
         self._cube_qadr = -1
         self._finger_geoms: frozenset[int] = frozenset()
+        self._estimated_for: Sensed | None = None
+        self._estimate = np.zeros(3)
 
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
         m = env.model
@@ -269,12 +271,17 @@ class PickTask(Task):
         return self.cube_position(env)[None]
 
     def _cube_estimate(self, env: Arm3Env, sensed: Sensed) -> np.ndarray:
-        """The contract's grasp-aware prediction on the env's sensed readings."""
+        """The contract's grasp-aware prediction on the env's sensed readings, once per step
+        (``goals`` and ``extra_readings`` both ask for it)."""
+        if self._estimated_for is sensed:
+            return self._estimate
         blind = float(sensed.blind_s[0])
-        if blind <= 0.0:
-            return sensed.points_m[0]
-        is_holding = holding(env.spec_arm, env.commanded_rad(), sensed.joints_rad)
-        return cube_estimate(sensed.points_m[0], sensed.ee_m, blind, is_holding)
+        cube = sensed.points_m[0]
+        if blind > 0.0:
+            is_holding = holding(env.spec_arm, env.commanded_rad(), sensed.joints_rad)
+            cube = cube_estimate(cube, sensed.ee_m, blind, is_holding)
+        self._estimated_for, self._estimate = sensed, cube
+        return cube
 
     def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
         return self._cube_estimate(env, sensed), self.goal_m
