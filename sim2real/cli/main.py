@@ -81,6 +81,7 @@ COMMANDS: tuple[Command, ...] = (
         "adapt a policy to the arm it meets: record, fit, fine-tune in sim, evaluate",
         long=True,
     ),
+    Command("finetune", "sim2real.cli.finetune", "learn on the mock or real arm", long=True),
     Command("replay", "sim2real.cli.replay", "read a recorded LeRobot dataset back"),
     Command("policies", "sim2real.cli.policies", "list the shipped, measured policies"),
 )

@@ -366,6 +366,12 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "judged_on": "none" if view is None else "truth" if view.truth else "estimate",
             "period_s": self.periods_s[-1],
             "sent_rad": sent.copy(),
+            # what the deploy log records per period (finetune writes it)
+            "targets_rad": self._targets.copy(),
+            "joints_rad": state.positions_rad.copy(),
+            "ee_est_m": percept.tool_m,
+            "goal_est_m": percept.position(self.io.contract.objects[0]),
+            "true_tool_m": view.tool_m if view is not None and view.truth else None,
         }
         if truncated:
             self._end_episode(out.figures, reason, info)

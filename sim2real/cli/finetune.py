@@ -1,0 +1,145 @@
+"""``sim2real finetune``: fine-tune a sim policy's actor and critic online on the mock or real arm."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+from sim2real.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("policy", help="a run directory (DDPG/TD3/SAC) or a shipped policy name")
+    parser.add_argument("--backend", default="mock", help="mock | serial (default: mock)")
+    parser.add_argument(
+        "--plant", default=None, help="mock: the arm as it really is (plant YAML or preset: "
+        "mild, moderate, hard); the policy keeps --spec"
+    )  # fmt: skip
+    parser.add_argument("--spec", default=None, help="ArmSpec YAML (default: the shipped arm)")
+    parser.add_argument(
+        "--minutes", type=float, default=15.0, help="arm minutes to learn for (this run)"
+    )
+    parser.add_argument(
+        "--algo", default=None, help="ddpg | td3 | sac (default: the source's; td3 may continue "
+        "a ddpg checkpoint)"
+    )  # fmt: skip
+    parser.add_argument(
+        "--mix-sim-buffer", action="store_true",
+        help="sample every batch 50/50 from online and sim transitions (RLPD)",
+    )  # fmt: skip
+    parser.add_argument("--sim-buffer-steps", type=int, default=5000)
+    parser.add_argument("--resume", action="store_true", help="continue the fine-tune in --out")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="run dir (default: runs/finetune-<policy>)"
+    )
+    parser.add_argument(
+        "--keys", action=argparse.BooleanOptionalAction, default=None,
+        help="human-in-the-loop keys on the terminal (default: when stdin is a terminal)",
+    )  # fmt: skip
+    parser.add_argument("--checkpoint-every", type=int, default=1, help="episodes")
+    parser.add_argument("--learning-starts", type=int, default=200, help="online steps first")
+    parser.add_argument("--utd", type=float, default=1.0, help="gradient steps per env step")
+    parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
+    parser.add_argument("--batch-size", type=int, default=None)
+    parser.add_argument("--learner-nice", type=int, default=10)
+    parser.add_argument("--success-window", type=int, default=20)
+    parser.add_argument("--eval-every", type=float, default=None, help="arm minutes between evals")
+    parser.add_argument("--eval-episodes", type=int, default=10)
+    parser.add_argument("--max-episodes", type=int, default=None, help="cap for this run")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--start-timeout", type=float, default=10.0)
+    parser.add_argument(
+        "--watchdog-s", type=float, default=None,
+        help="mock only: a longer watchdog than the spec's (a loaded machine); a real arm keeps it",
+    )  # fmt: skip
+    parser.add_argument("--protocol", default="s2r", help="s2r | feetech | maestro")
+    parser.add_argument("--port", default=None, help="serial port or pyserial URL (serial)")
+    parser.add_argument("--baud", type=int, default=None)
+    parser.add_argument("--joint-calibration", type=Path, default=None)
+    parser.add_argument("--cameras", default="0,1", help="left,right cv2.VideoCapture indices")
+    parser.add_argument("--calibration", type=Path, default=None, help="stereo calibration file")
+    parser.add_argument("--registration", type=Path, default=None, help="base_T_cam file")
+    parser.add_argument(
+        "--record-dataset", type=Path, default=None, metavar="DIR",
+        help="also write the episodes as a LeRobot dataset",
+    )  # fmt: skip
+    parser.add_argument("--json", action="store_true", help="JSON lines: each episode, a summary")
+    parser.add_argument("-v", "--verbose", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hardware.spec import load_spec
+    from sim2real.deploy.runner import DeployOptions
+    from sim2real.finetune.runner import FinetuneOptions, finetune
+
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
+    )
+    if args.backend not in ("mock", "serial"):
+        raise ConfigError(f"--backend {args.backend!r} is not one of ['mock', 'serial']")
+    try:
+        cams = tuple(int(c) for c in args.cameras.split(","))
+    except ValueError:
+        raise ConfigError(f"--cameras {args.cameras!r} must be two integers like 0,1") from None
+    if len(cams) != 2:
+        raise ConfigError(f"--cameras {args.cameras!r} must name exactly two cameras")
+    base_T_left = None
+    if args.registration is not None:
+        from calibration.registration import load_base_T_cam
+
+        base_T_left = load_base_T_cam(args.registration)
+    spec = load_spec(args.spec)
+    opts = DeployOptions(
+        backend=args.backend, protocol=args.protocol, port=args.port, baud=args.baud,
+        joint_calibration=args.joint_calibration, cameras=(cams[0], cams[1]),
+        stereo_calibration=args.calibration, base_T_left=base_T_left, plant=args.plant,
+        watchdog_s=args.watchdog_s,
+    )  # fmt: skip
+    out = args.out or Path("runs") / f"finetune-{Path(args.policy).name}"
+    fo = FinetuneOptions(
+        policy=args.policy, out=out, deploy=opts, minutes=args.minutes, algo=args.algo,
+        mix_sim_buffer=args.mix_sim_buffer, sim_buffer_steps=args.sim_buffer_steps,
+        resume=args.resume, keys=args.keys, checkpoint_every=args.checkpoint_every,
+        learning_starts=args.learning_starts, utd=args.utd, publish_every=args.publish_every,
+        batch_size=args.batch_size, learner_nice=args.learner_nice,
+        success_window=args.success_window, eval_every_min=args.eval_every,
+        eval_episodes=args.eval_episodes, max_episodes=args.max_episodes, seed=args.seed,
+        start_timeout_s=args.start_timeout, record_dataset=args.record_dataset,
+    )  # fmt: skip
+
+    def report(event: dict[str, Any]) -> None:
+        if args.json:
+            print(json.dumps(event, default=_plain), flush=True)
+        elif event.get("event") == "episode":
+            print(
+                f"episode {event['episode']:4d} {event['kind']:5s} "
+                f"success={int(event['success'])} arm {event['arm_min_total']:6.2f} min "
+                f"steps {event['env_steps']} updates {event['learner_updates']} "
+                f"recent {event['success_last_n']:.2f}",
+                flush=True,
+            )
+
+    summary = finetune(fo, spec, report)
+    if args.json:
+        print(json.dumps(summary, default=_plain), flush=True)
+    else:
+        for key, value in summary.items():
+            if key != "event":
+                print(f"{key:22s} {value}")
+    return 0 if summary["stopped"] is None else 1
+
+
+def _plain(value: Any) -> Any:
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return str(value)

@@ -1,0 +1,450 @@
+"""The learner process: the SB3 model, its replay buffer, critic and optimisers, off the loop.
+
+The control loop must never wait for a gradient. So the learner is another process (spawned,
+not forked: the loop's process holds threads, a serial port and possibly real-time priority), at
+a lower CPU priority (``nice``) and normal scheduling. One queue carries the loop's transitions
+and commands, in order, so a checkpoint holds exactly the transitions sent before it; the actor's
+weights come back through shared memory (one flat float32 vector, a version counter and a lock
+the loop only ever *tries*), so the loop picks up new weights between periods without blocking.
+
+The learner ignores SIGINT and SIGTERM (a Ctrl-C reaches the whole foreground group: the loop
+decides, parks the arm, asks for a checkpoint, then stops it) and dies with its parent
+(``PR_SET_PDEATHSIG`` on Linux, and a parent check every few hundred milliseconds).
+
+``--mix-sim-buffer``: a second buffer of sim transitions, collected at start-up from the source
+run's own env with its own actor (exploring), is sampled 50/50 with the online buffer in every
+batch (symmetric sampling, as in RLPD, Ball et al. 2023).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import os
+import queue
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sim2real.errors import Sim2RealError
+
+log = logging.getLogger(__name__)
+
+MAX_ACTOR_FLOATS = 4_000_000  # the shared actor vector (16 MB): far above any MLP we train
+TRAIN_CHUNK = 4  # gradient steps between two looks at the queue
+READY_TIMEOUT_S = 300.0  # loading torch + SB3 (+ a sim buffer) on a loaded 2-core machine
+
+
+class LearnerError(Sim2RealError):
+    """The learner process failed or went away."""
+
+
+@dataclass(frozen=True)
+class SimBufferConfig:
+    env_id: str
+    env_kwargs: dict[str, Any]
+    spec: Any  # ArmSpec (picklable)
+    steps: int = 5000
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    algo: str
+    source_algo: str
+    model_zip: str
+    obs_stats: dict[str, Any] | None
+    replay_npz: str | None = None  # resume: the online transitions so far
+    resume: bool = False  # model_zip is our own checkpoint (already in ``algo``'s form)
+    capacity: int = 200_000
+    batch_size: int | None = None  # None: the source run's
+    learning_starts: int = 200  # online transitions before the first gradient step
+    utd: float = 1.0  # gradient steps per online transition
+    publish_every: int = 20  # env steps between two weight publications
+    nice: int = 10
+    seed: int = 0
+    sim_buffer: SimBufferConfig | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+# ---- the learner's side ------------------------------------------------------------------------
+def _detach_from_loop(nice: int, parent_pid: int) -> None:
+    """Lower priority than the loop, normal scheduling, no terminal signals, die with it."""
+    with contextlib.suppress(OSError, AttributeError):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # never inherit FIFO
+    with contextlib.suppress(OSError):
+        os.nice(nice)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    if os.getppid() != parent_pid:  # the parent died before the prctl
+        os._exit(1)
+
+
+def _mixed_buffer_class() -> Any:
+    import torch as th
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    class MixedReplayBuffer(ReplayBuffer):
+        """Online transitions; with ``sim`` set, half of every batch comes from it."""
+
+        sim: ReplayBuffer | None = None
+
+        def sample(self, batch_size: int, env: Any = None) -> Any:
+            if self.sim is None or self.sim.size() == 0:
+                return super().sample(batch_size, env)
+            n_online = batch_size // 2
+            online = super().sample(n_online, env)
+            offline = self.sim.sample(batch_size - n_online, env)
+            return type(online)(
+                *(  # type: ignore[arg-type]
+                    None if a is None or b is None else th.cat([a, b])
+                    for a, b in zip(online, offline, strict=True)
+                )
+            )
+
+    return MixedReplayBuffer
+
+
+class Learner:
+    """The SB3 model and its buffers, inside the learner process."""
+
+    def __init__(self, cfg: LearnerConfig) -> None:
+        import torch as th
+        from stable_baselines3.common.logger import Logger
+
+        from sim2real.finetune.actor import ObsNormalizer, actor_arrays
+        from sim2real.train.algos import get_algo
+
+        th.set_num_threads(1)
+        self.cfg = cfg
+        cls = get_algo(cfg.algo).cls
+        self.model = cls.load(  # type: ignore[attr-defined]
+            cfg.model_zip,
+            device="cpu",
+            custom_objects={
+                "buffer_size": 1,
+                "learning_starts": 0,
+                "replay_buffer_class": None,
+                "replay_buffer_kwargs": {},
+            },
+        )
+        model = self.model
+        if not cfg.resume and cfg.source_algo != cfg.algo:  # ddpg -> td3: TD3's update rule
+            model.policy_delay, model.target_policy_noise, model.target_noise_clip = 2, 0.2, 0.5
+        model.set_logger(Logger(folder=None, output_formats=[]))
+        model.set_random_seed(cfg.seed)
+        self.batch_size = int(cfg.batch_size or model.batch_size)
+        buffer_cls = _mixed_buffer_class()
+        self.buffer = buffer_cls(
+            cfg.capacity, model.observation_space, model.action_space, device="cpu", n_envs=1,
+            handle_timeout_termination=False,
+        )  # fmt: skip
+        model.replay_buffer = self.buffer
+        if cfg.replay_npz is not None:
+            self._load_replay(cfg.replay_npz)
+        self.normalizer = ObsNormalizer.from_stats(cfg.obs_stats)
+        self.kind, arrays = actor_arrays(model)
+        self.shapes = [a.shape for a in arrays]
+        noise = getattr(model, "action_noise", None)
+        sigma = getattr(getattr(noise, "base_noise", noise), "_sigma", None)
+        self.noise_std = float(np.mean(sigma)) if sigma is not None else 0.1
+        if cfg.sim_buffer is not None:
+            self.buffer.sim = self._collect_sim(cfg.sim_buffer)
+
+    @property
+    def updates(self) -> int:
+        return int(self.model._n_updates)
+
+    def flat_actor(self) -> np.ndarray:
+        from sim2real.finetune.actor import actor_arrays, flatten
+
+        return flatten(actor_arrays(self.model)[1])
+
+    def add(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
+            done: bool) -> None:  # fmt: skip
+        self.buffer.add(
+            obs[None], next_obs[None], np.asarray(action, np.float32)[None],
+            np.asarray([reward], np.float32), np.asarray([float(done)], np.float32), [{}],
+        )  # fmt: skip
+
+    def train(self, steps: int) -> None:
+        self.model.train(gradient_steps=steps, batch_size=self.batch_size)
+
+    def save(self, model_paths: list[str], replay_path: str) -> None:
+        from hardware.atomic import atomic_write_bytes
+
+        buf = io.BytesIO()
+        self.model.save(buf)
+        for path in model_paths:
+            atomic_write_bytes(path, buf.getvalue())
+        n = self.buffer.size()
+        out = io.BytesIO()
+        np.savez(
+            out,
+            obs=self.buffer.observations[:n, 0],
+            next_obs=self.buffer.next_observations[:n, 0],
+            actions=self.buffer.actions[:n, 0],
+            rewards=self.buffer.rewards[:n, 0],
+            dones=self.buffer.dones[:n, 0],
+            pos=np.asarray(self.buffer.pos),
+            full=np.asarray(self.buffer.full),
+        )
+        atomic_write_bytes(replay_path, out.getvalue())
+
+    def _load_replay(self, path: str) -> None:
+        with np.load(path) as data:
+            n = len(data["obs"])
+            if n > self.buffer.buffer_size:
+                raise LearnerError(f"{path}: {n} transitions, more than the buffer's capacity")
+            b = self.buffer
+            b.observations[:n, 0] = data["obs"]
+            b.next_observations[:n, 0] = data["next_obs"]
+            b.actions[:n, 0] = data["actions"]
+            b.rewards[:n, 0] = data["rewards"]
+            b.dones[:n, 0] = data["dones"]
+            b.full = bool(data["full"]) and n == b.buffer_size
+            b.pos = int(data["pos"]) if b.full else n % b.buffer_size
+
+    def _collect_sim(self, sc: SimBufferConfig) -> Any:
+        """Sim transitions from the source run's env, acted by the source actor (exploring)."""
+        from stable_baselines3.common.buffers import ReplayBuffer
+
+        import sim2real.envs as envs
+        from sim2real.finetune.actor import NumpyActor
+
+        actor = NumpyActor(self.kind, self.shapes, self.flat_actor(), self.normalizer,
+                           self.noise_std)  # fmt: skip
+        rng = np.random.default_rng(sc.seed)
+        env = envs.make(sc.env_id, **{**sc.env_kwargs, "spec": sc.spec})
+        sim = ReplayBuffer(
+            sc.steps, self.model.observation_space, self.model.action_space, device="cpu",
+            n_envs=1, handle_timeout_termination=False,
+        )  # fmt: skip
+        norm = self.normalizer or (lambda o: np.asarray(o, np.float32))
+        t0 = time.monotonic()
+        try:
+            obs, _ = env.reset(seed=sc.seed)
+            for _ in range(sc.steps):
+                action = actor.explore(obs, rng)
+                nxt, reward, terminated, truncated, _ = env.step(action)
+                sim.add(
+                    norm(obs)[None], norm(nxt)[None], action[None],
+                    np.asarray([reward], np.float32), np.asarray([float(terminated)], np.float32),
+                    [{}],
+                )  # fmt: skip
+                obs = nxt
+                if terminated or truncated:
+                    obs, _ = env.reset()
+        finally:
+            env.close()
+        log.info("sim buffer: %d transitions in %.1f s", sim.size(), time.monotonic() - t0)
+        return sim
+
+
+def run_learner(
+    cfg: LearnerConfig, inbox: Any, outbox: Any, shared: Any, lock: Any, version: Any,
+    updates: Any, parent_pid: int,
+) -> None:  # fmt: skip
+    """The learner process's main: load, publish the first weights, then learn until "stop"."""
+    _detach_from_loop(cfg.nice, parent_pid)
+    try:
+        learner = Learner(cfg)
+        flat = learner.flat_actor()
+        if flat.size > MAX_ACTOR_FLOATS:
+            raise LearnerError(f"the actor has {flat.size} weights; at most {MAX_ACTOR_FLOATS}")
+        view = np.frombuffer(shared, dtype=np.float32)
+
+        def publish() -> None:
+            with lock:
+                view[: flat.size] = learner.flat_actor()
+                version.value += 1
+
+        publish()
+        updates.value = learner.updates
+        outbox.put(
+            ("ready", {"kind": learner.kind, "shapes": learner.shapes, "size": int(flat.size),
+                       "noise_std": learner.noise_std, "online": int(learner.buffer.size()),
+                       "updates": learner.updates,
+                       "sim": int(learner.buffer.sim.size()) if learner.buffer.sim else 0})
+        )  # fmt: skip
+        _serve(learner, cfg, inbox, outbox, publish, updates, parent_pid)
+    except BaseException as exc:  # the loop reads it between episodes and stops cleanly
+        with contextlib.suppress(Exception):
+            outbox.put(
+                ("error", f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+            )
+        raise
+
+
+def _serve(
+    learner: Learner, cfg: LearnerConfig, inbox: Any, outbox: Any, publish: Any, updates: Any,
+    parent_pid: int,
+) -> None:  # fmt: skip
+    pending = 0.0  # gradient steps owed (utd per online transition once warm)
+    cap = max(cfg.utd * cfg.publish_every * 5, TRAIN_CHUNK)
+    since_publish = 0
+    trained_since_publish = False
+    while True:
+        warm = learner.buffer.size() >= cfg.learning_starts
+        can_train = warm and pending >= 1
+        messages = []
+        try:
+            messages.append(inbox.get_nowait() if can_train else inbox.get(timeout=0.2))
+            while len(messages) < 256:
+                messages.append(inbox.get_nowait())
+        except queue.Empty:
+            pass
+        if os.getppid() != parent_pid:
+            return
+        for msg in messages:
+            kind = msg[0]
+            if kind == "t":
+                _, obs, action, reward, next_obs, done = msg
+                learner.add(obs, action, reward, next_obs, done)
+                since_publish += 1
+                if learner.buffer.size() >= cfg.learning_starts:
+                    pending = min(pending + cfg.utd, cap)
+            elif kind == "save":
+                _, model_paths, replay_path = msg
+                learner.save(model_paths, replay_path)
+                outbox.put(("saved", learner.updates, int(learner.buffer.size())))
+            elif kind == "stop":
+                return
+        if learner.buffer.size() >= cfg.learning_starts and pending >= 1:
+            k = min(int(pending), TRAIN_CHUNK)
+            learner.train(k)
+            pending -= k
+            updates.value = learner.updates
+            trained_since_publish = True
+        if since_publish >= cfg.publish_every and trained_since_publish:
+            publish()
+            since_publish = 0
+            trained_since_publish = False
+
+
+# ---- the loop's side ---------------------------------------------------------------------------
+class LearnerHandle:
+    """The loop's end: send transitions, take new weights without blocking, checkpoint, stop."""
+
+    def __init__(self, cfg: LearnerConfig) -> None:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        self.cfg = cfg
+        self.inbox = ctx.Queue()
+        self.outbox = ctx.Queue()
+        self.shared = ctx.RawArray("f", MAX_ACTOR_FLOATS)
+        self.lock = ctx.Lock()
+        self.version = ctx.Value("Q", 0, lock=False)
+        self.updates_value = ctx.Value("Q", 0, lock=False)
+        self.process = ctx.Process(
+            target=run_learner,
+            args=(cfg, self.inbox, self.outbox, self.shared, self.lock, self.version,
+                  self.updates_value, os.getpid()),
+            name="sim2real-learner",
+            daemon=True,
+        )  # fmt: skip
+        self._seen = 0
+        self.info: dict[str, Any] = {}
+        self.process.start()
+
+    @property
+    def pid(self) -> int | None:
+        return self.process.pid
+
+    @property
+    def updates(self) -> int:
+        return int(self.updates_value.value)
+
+    def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> dict[str, Any]:
+        msg = self._reply(timeout_s, "start")
+        if msg[0] != "ready":
+            raise LearnerError(f"the learner answered {msg[0]!r} instead of starting")
+        self.info = dict(msg[1])
+        return self.info
+
+    def initial_weights(self) -> np.ndarray:
+        with self.lock:
+            self._seen = int(self.version.value)
+            return np.frombuffer(self.shared, np.float32, count=self.info["size"]).copy()
+
+    def new_weights(self) -> np.ndarray | None:
+        """The newest published actor, or None if there is none newer or the learner is
+        writing it right now (the loop never waits: it tries again next period)."""
+        if int(self.version.value) == self._seen or not self.lock.acquire(block=False):
+            return None
+        try:
+            self._seen = int(self.version.value)
+            return np.frombuffer(self.shared, np.float32, count=self.info["size"]).copy()
+        finally:
+            self.lock.release()
+
+    def send(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
+             done: bool) -> None:  # fmt: skip
+        self.inbox.put(("t", obs, action, float(reward), next_obs, bool(done)))
+
+    def check(self) -> None:
+        """Between episodes: a learner that failed or died is an error here."""
+        try:
+            msg = self.outbox.get_nowait()
+        except queue.Empty:
+            msg = None
+        if msg is not None and msg[0] == "error":
+            raise LearnerError(f"the learner failed: {msg[1]}")
+        if not self.process.is_alive():
+            raise LearnerError(f"the learner process exited ({self.process.exitcode})")
+
+    def checkpoint(self, model_paths: list[str], replay_path: str, timeout_s: float = 120.0
+                   ) -> tuple[int, int]:  # fmt: skip
+        """Ask for a checkpoint of everything sent so far; (updates, online transitions)."""
+        self.inbox.put(("save", model_paths, replay_path))
+        msg = self._reply(timeout_s, "checkpoint")
+        if msg[0] != "saved":
+            raise LearnerError(f"the learner answered {msg[0]!r} to a checkpoint")
+        return int(msg[1]), int(msg[2])
+
+    def _reply(self, timeout_s: float, what: str) -> tuple[Any, ...]:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                msg = self.outbox.get(timeout=0.2)
+            except queue.Empty:
+                if not self.process.is_alive():
+                    raise LearnerError(
+                        f"the learner process exited ({self.process.exitcode}) during {what}"
+                    ) from None
+                if time.monotonic() > deadline:
+                    raise LearnerError(
+                        f"the learner did not answer ({what}) in {timeout_s:g} s"
+                    ) from None
+                continue
+            if msg[0] == "error":
+                raise LearnerError(f"the learner failed during {what}: {msg[1]}")
+            return tuple(msg)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Stop it (a "stop" message, then terminate, then kill) and release the queues."""
+        if self.process.is_alive():
+            with contextlib.suppress(Exception):
+                self.inbox.put(("stop",))
+            self.process.join(timeout_s)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(2.0)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(2.0)
+        for q in (self.inbox, self.outbox):
+            q.cancel_join_thread()
+            q.close()
