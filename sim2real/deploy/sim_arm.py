@@ -6,12 +6,16 @@ behaviour between the command and the horn comes from the same ``ServoActuation`
 use. Time: ``clock="lockstep"`` advances one control period per command (fast, deterministic);
 ``clock="realtime"`` steps physics to catch up with the wall clock on every call, as a real arm
 keeps moving while the host thinks.
+
+Between episodes (``move_to``: home, park) a free finger caught in the model's numerical limit
+cycle is set at rest where its actuator drives it; see ``FINGER_CYCLE_SPEED_M_S``.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -20,9 +24,19 @@ from hardware.arm import ArmBase, ArmState
 from hardware.spec import ArmSpec
 from sim2real.actuation import ServoActuation
 from sim2real.errors import UnknownNameError
-from sim2real.model import ArmTwin, RigSpec, build_model
+from sim2real.model import FINGER_GEOMS, ArmTwin, RigSpec, build_model
+from sim2real.scene_names import FINGER_JOINTS
 
 CLOCKS = ("lockstep", "realtime")
+# The finger actuator's damping (kv) is stiff for the 5 ms step and counts inside its force
+# clamp; once the clamp saturates, MuJoCo's implicit integration no longer covers it and a free
+# finger can lock into a two-step limit cycle (measured: +-0.86 m/s, 4 mm apart, forever, 105 of
+# 200 random gripper moves in free air). The env has the same model, and the shipped policy was
+# trained on it, so episodes keep it; but a cycle entered when a held cube drops at homing never
+# reaches the home opening (an even number of steps per command samples one phase: "gripper
+# stopped 0.47 rad away"). A servo-driven finger that still moves this fast a whole period
+# after its last command is in that cycle, not on its way.
+FINGER_CYCLE_SPEED_M_S = 0.3
 
 
 class SimArm(ArmBase):
@@ -58,6 +72,10 @@ class SimArm(ArmBase):
         self._targets = spec.actuator_park_rad.copy()
         self._n = n
         self._wall_t0 = 0.0
+        self._moving = False  # inside move_to (home, park): between episodes
+        if self.twin.has_gripper:
+            self._finger_dofs = np.array([self.model.joint(j).dofadr[0] for j in FINGER_JOINTS])
+            self._finger_geoms = frozenset(self.model.geom(g).id for g in FINGER_GEOMS)
         # Every target vector applied, oldest first (bounded): what the contract tests compare
         # with what command() returned.
         self.received: deque[np.ndarray] = deque(maxlen=10_000)
@@ -67,6 +85,23 @@ class SimArm(ArmBase):
         steps = int(seconds / self.model.opt.timestep)
         if steps > 0:
             mujoco.mj_step(self.model, self.data, nstep=steps)
+            self._settle_fingers()
+
+    def _settle_fingers(self) -> None:
+        """Between episodes only: a free finger in the limit cycle (``FINGER_CYCLE_SPEED_M_S``)
+        is put at rest where its actuator drives it, as a real gripper's would be."""
+        if not (self._moving and self.twin.has_gripper):
+            return
+        d = self.data
+        if np.max(np.abs(d.qvel[self._finger_dofs])) < FINGER_CYCLE_SPEED_M_S:
+            return
+        geoms = self._finger_geoms
+        for i in range(d.ncon):  # a finger on something: the contact decides, not the actuator
+            if int(d.contact[i].geom1) in geoms or int(d.contact[i].geom2) in geoms:
+                return
+        d.qpos[self.twin.finger_qadr] = d.ctrl[self.twin.n_joints]
+        d.qvel[self._finger_dofs] = 0.0
+        mujoco.mj_forward(self.model, d)
 
     def _catch_up(self) -> None:
         if self.clock == "realtime":
@@ -105,10 +140,20 @@ class SimArm(ArmBase):
         self.twin.write_ctrl(self.data, joint_ctrl, grip)
         if self.clock == "lockstep":
             mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+            self._settle_fingers()
         res = self.spec.servo.resolution_rad
         sent = np.rint(self._targets / res) * res if res > 0 else self._targets.copy()
         self.received.append(sent.copy())
         return sent
+
+    def move_to(self, target_rad: np.ndarray, **kwargs: Any) -> ArmState:
+        """``ArmBase.move_to`` (home, park: no policy runs) with the fingers kept out of the
+        model's limit cycle."""
+        self._moving = True
+        try:
+            return super().move_to(target_rad, **kwargs)
+        finally:
+            self._moving = False
 
     @property
     def torque_on(self) -> bool:
