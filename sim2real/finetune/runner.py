@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
 from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
@@ -36,6 +37,7 @@ from sim2real.finetune.checkpoint import ALGOS, FinetuneDir, FinetuneSource, res
 log = logging.getLogger(__name__)
 
 Report = Callable[[dict[str, Any]], None]
+MAX_CONSECUTIVE_TRIPS = 3  # watchdog trips in a row that a simulated arm recovers from
 
 
 @dataclass(frozen=True)
@@ -135,6 +137,7 @@ class _Run:
         self.start_episodes = int(self.state["episodes"])
         self.start_arm_s = float(self.state["arm_s"])
         self.watchdog_trips = 0
+        self._consecutive_trips = 0
         self.weight_updates = 0
         self.wall_t0 = time.monotonic()
         self.wall_before = float(self.state.get("wall_s", 0.0))
@@ -302,20 +305,31 @@ class _Run:
                 run_eps = int(st["episodes"]) - self.start_episodes
                 if eval_left == 0 and next_eval is not None and st["arm_s"] >= next_eval:
                     eval_left = fo.eval_episodes
-                    st["evals"].append({"arm_min": st["arm_s"] / 60.0, "successes": 0, "n": 0})
+                    st["evals"].append({"arm_min": st["arm_s"] / 60.0, "successes": 0, "n": 0,
+                                        "end_episode": None})  # fmt: skip
                     next_eval += fo.eval_every_min * 60.0  # type: ignore[operator]
                 if eval_left == 0 and (
                     used_s >= budget_s or (fo.max_episodes is not None and run_eps >= fo.max_episodes)
                 ):  # fmt: skip
-                    return
+                    last = st["evals"][-1] if st["evals"] else None
+                    if next_eval is None or (last is not None and last["end_episode"] is not None
+                                             and last["end_episode"] == st["episodes"]):  # fmt: skip
+                        return
+                    eval_left = fo.eval_episodes  # a last evaluation of the final actor
+                    st["evals"].append({"arm_min": st["arm_s"] / 60.0, "successes": 0, "n": 0,
+                                        "end_episode": None})  # fmt: skip
                 evaluating = eval_left > 0
                 episode = int(st["episodes"])
                 t0 = time.monotonic()
-                obs, _ = env.reset(seed=fo.seed + episode)
                 rows = LoopLog()
                 truncated = terminated = False
                 step = 0
                 info: dict[str, Any] = {}
+                try:
+                    obs, _ = env.reset(seed=fo.seed + episode)
+                except HardwareError as exc:
+                    self._recover(exc, env, t0)
+                    continue
                 while not (truncated or terminated):
                     weights = learner.new_weights()
                     if weights is not None:
@@ -323,7 +337,11 @@ class _Run:
                         self.weight_updates += 1
                     action = actor.act(obs) if evaluating else actor.explore(obs, rng)
                     t_s = time.perf_counter()
-                    nxt, reward, terminated, truncated, info = env.step(action)
+                    try:
+                        nxt, reward, terminated, truncated, info = env.step(action)
+                    except HardwareError as exc:
+                        self._recover(exc, env, t0)
+                        break
                     learner.send(norm(obs), action, reward, norm(nxt), terminated)
                     st["env_steps"] += 1
                     rows.add(
@@ -341,38 +359,75 @@ class _Run:
                         recorder.on_period(frames)
                     obs = nxt
                     step += 1
-                arm_s = time.monotonic() - t0
-                st["arm_s"] = float(st["arm_s"]) + arm_s
-                st["episodes"] = episode + 1
-                success = bool(info.get("is_success", False))
-                rows.save(self.dir.episode_log(episode))
-                if recorder is not None:
-                    recorder.on_episode(episode, success, rows.rows)
-                record = {
-                    "episode": episode,
-                    "kind": "eval" if evaluating else "train",
-                    "success": success,
-                    "judged_on": info.get("judged_on"),
-                    "distance_m": info.get("distance_m"),
-                    "steps": step,
-                    "arm_s": round(arm_s, 3),
-                    "arm_min_total": round(st["arm_s"] / 60.0, 4),
-                    "env_steps": st["env_steps"],
-                }
-                st["episode_log"].append(record)
-                if evaluating:
-                    block = st["evals"][-1]
-                    block["n"] += 1
-                    block["successes"] += int(success)
-                    eval_left -= 1
-                self._interventions(human)
-                learner.check()
-                if (episode + 1) % fo.checkpoint_every == 0:
-                    self.checkpoint(learner)
-                updates = learner.updates - int(st.get("updates_base", 0))
-                self.report({"event": "episode", **record, "learner_updates": updates,
-                             "success_last_n": self._recent_success(),
-                             **{k: round(v, 3) for k, v in env.timing().items()}})  # fmt: skip
+                else:
+                    self._episode_done(env, learner, human, recorder, rows, info, t0, step,
+                                       evaluating)  # fmt: skip
+                    self._consecutive_trips = 0
+                    if evaluating:
+                        eval_left -= 1
+
+    def _recover(self, exc: HardwareError, env: Any, t0: float) -> None:
+        """A watchdog trip on a simulated arm (the machine was too busy to feed it): the episode
+        in flight is lost (ArmEnv parked the arm), the next reset homes it again. Anything else,
+        any trip on a real arm, or three in a row, stops the run (``--resume`` continues)."""
+        if (
+            "watchdog" not in str(exc)
+            or self.fo.deploy.backend == "serial"
+            or self._consecutive_trips >= MAX_CONSECUTIVE_TRIPS
+        ):
+            raise exc
+        self._consecutive_trips += 1
+        self.watchdog_trips += 1
+        self.state["arm_s"] = float(self.state["arm_s"]) + time.monotonic() - t0
+        self.state["stops"].append(
+            {"reason": _why(exc), "episode": self.state["episodes"], "recovered": True,
+             "env_steps": self.state["env_steps"]}
+        )  # fmt: skip
+        log.warning(
+            "episode %d lost to a watchdog trip (%s): homing for the next",
+            self.state["episodes"],
+            exc,
+        )
+
+    def _episode_done(
+        self, env: Any, learner: Any, human: Any, recorder: Any, rows: Any, info: dict[str, Any],
+        t0: float, step: int, evaluating: bool,
+    ) -> None:  # fmt: skip
+        fo, st = self.fo, self.state
+        episode = int(st["episodes"])
+        arm_s = time.monotonic() - t0
+        st["arm_s"] = float(st["arm_s"]) + arm_s
+        st["episodes"] = episode + 1
+        success = bool(info.get("is_success", False))
+        rows.save(self.dir.episode_log(episode))
+        if recorder is not None:
+            recorder.on_episode(episode, success, rows.rows)
+        record = {
+            "episode": episode,
+            "kind": "eval" if evaluating else "train",
+            "success": success,
+            "judged_on": info.get("judged_on"),
+            "distance_m": info.get("distance_m"),
+            "steps": step,
+            "arm_s": round(arm_s, 3),
+            "arm_min_total": round(st["arm_s"] / 60.0, 4),
+            "env_steps": st["env_steps"],
+        }
+        st["episode_log"].append(record)
+        if evaluating:
+            block = st["evals"][-1]
+            block["n"] += 1
+            block["successes"] += int(success)
+            if block["n"] >= fo.eval_episodes:
+                block["end_episode"] = st["episodes"]
+        self._interventions(human)
+        learner.check()
+        if (episode + 1) % fo.checkpoint_every == 0:
+            self.checkpoint(learner)
+        updates = learner.updates - int(st.get("updates_base", 0))
+        self.report({"event": "episode", **record, "learner_updates": updates,
+                     "success_last_n": self._recent_success(),
+                     **{k: round(v, 3) for k, v in env.timing().items()}})  # fmt: skip
 
     def _recent_success(self) -> float:
         recent = [e["success"] for e in self.state["episode_log"] if e["kind"] == "train"]

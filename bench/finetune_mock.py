@@ -1,0 +1,135 @@
+"""Fine-tuning on the mock arm: success against arm minutes, and the loop's timing while learning.
+
+A shipped (or run-dir) off-policy policy is fine-tuned with ``sim2real finetune``'s own code on the
+mock arm built from a plant preset, for M arm minutes per seed. Every few arm minutes the loop runs
+N deterministic evaluation episodes (the first at minute 0: the zero-shot success; a last one after
+the budget), so the curve is success against arm minutes, with Wilson 95 % intervals. Arm minutes
+count everything the arm did (training and evaluation episodes, resets and homing).
+
+JSON lines: one per evaluation block (``finetune_eval_success``), the loop's timing while the
+learner trains (``finetune_loop``: rate, period jitter p50/p99, late periods, watchdog trips), the
+learner's updates, the safety stats; then the learning-curve PNG path (matplotlib, Agg).
+
+    nice -n 5 .venv/bin/python bench/finetune_mock.py reach-ddpg --plant hard --minutes 5
+    nice -n 5 .venv/bin/python bench/finetune_mock.py reach-ddpg --plant hard --minutes 15 --seeds 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+
+def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
+    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+
+
+def _plot(curves: dict[int, list[dict[str, Any]]], target: float | None, path: Path,
+          title: str) -> None:  # fmt: skip
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    for seed, evals in curves.items():
+        x = [e["arm_min"] for e in evals]
+        y = [e["success"] for e in evals]
+        lo = [e["success"] - e["wilson95"][0] for e in evals]
+        hi = [e["wilson95"][1] - e["success"] for e in evals]
+        ax.errorbar(x, y, yerr=[lo, hi], marker="o", capsize=3, label=f"seed {seed}")
+    if target is not None:
+        ax.axhline(target, color="grey", linestyle="--", label="0.9 x sim success")
+    ax.set_xlabel("arm minutes")
+    ax.set_ylabel("success (deterministic actor)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main() -> None:
+    from hardware.spec import load_spec
+    from sim2real.deploy.runner import DeployOptions
+    from sim2real.finetune.runner import FinetuneOptions, finetune
+    from sim2real.policies import shipped
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("policy", nargs="?", default="reach-ddpg")
+    ap.add_argument("--plant", default="hard", help="mock plant preset or YAML")
+    ap.add_argument("--minutes", type=float, default=5.0, help="arm minutes per seed")
+    ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--algo", default=None)
+    ap.add_argument("--mix-sim-buffer", action="store_true")
+    ap.add_argument("--utd", type=float, default=1.0)
+    ap.add_argument("--learning-starts", type=int, default=200)
+    ap.add_argument("--eval-every", type=float, default=1.5, help="arm minutes")
+    ap.add_argument("--eval-episodes", type=int, default=10)
+    ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
+    ap.add_argument("--out", type=Path, default=Path("runs/bench-finetune"))
+    args = ap.parse_args()
+
+    spec = load_spec()
+    card = shipped().get(args.policy)
+    sim_success = None
+    if card is not None:
+        sim_success = getattr(card, "figures", {}).get("env_success_dr_default")
+    common = {
+        "policy": args.policy, "plant": args.plant, "algo": args.algo or "source's",
+        "mix_sim_buffer": args.mix_sim_buffer, "utd": args.utd,
+        "watchdog_s": args.watchdog_s or spec.safety.watchdog_timeout_s,
+        "machine": f"{platform.machine()} {os.cpu_count()} cpu",
+        "date": time.strftime("%Y-%m-%d"),
+    }  # fmt: skip
+    tag = f"{args.policy}-{args.plant}{'-mix' if args.mix_sim_buffer else ''}"
+    curves: dict[int, list[dict[str, Any]]] = {}
+    for seed in range(args.seeds):
+        out = args.out / f"{tag}-s{seed}"
+        if out.exists():
+            shutil.rmtree(out)
+        t0 = time.monotonic()
+        fo = FinetuneOptions(
+            policy=args.policy, out=out,
+            deploy=DeployOptions(backend="mock", plant=args.plant, watchdog_s=args.watchdog_s),
+            minutes=args.minutes, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
+            utd=args.utd, learning_starts=args.learning_starts, keys=False,
+            eval_every_min=args.eval_every, eval_episodes=args.eval_episodes, seed=seed,
+            start_timeout_s=30.0,
+        )  # fmt: skip
+        summary = finetune(fo, spec)
+        wall_s = time.monotonic() - t0
+        curves[seed] = summary["evals"]
+        for block in summary["evals"]:
+            emit("finetune_eval_success", block["success"], "fraction", seed=seed,
+                 arm_min=round(block["arm_min"], 3), n=block["n"], wilson95=block["wilson95"],
+                 **common)  # fmt: skip
+        loop = summary["loop"]
+        emit("finetune_loop", loop["rate_hz"], "Hz", seed=seed,
+             p50_jitter_ms=loop["period_jitter_ms_p50"], p99_jitter_ms=loop["period_jitter_ms_p99"],
+             late_periods=loop["late_periods"], watchdog_trips=loop["watchdog_trips"],
+             **common)  # fmt: skip
+        emit("finetune_run", summary["episodes"], "episodes", seed=seed,
+             arm_min=round(summary["arm_s"] / 60.0, 3), wall_min=round(wall_s / 60.0, 3),
+             env_steps=summary["env_steps"], learner_updates=summary["learner_updates"],
+             actor_weight_updates=summary["actor_weight_updates"], safety=summary["safety"],
+             stopped=summary["stopped"], sim_success=sim_success, **common)  # fmt: skip
+    png = args.out / f"{tag}.png"
+    target = None if sim_success is None else 0.9 * float(sim_success)
+    _plot(curves, target, png, f"{args.policy} on the {args.plant} plant (mock arm)")
+    emit("finetune_curve_png", str(png), "path", **common)
+
+
+if __name__ == "__main__":
+    main()

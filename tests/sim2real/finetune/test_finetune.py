@@ -1,0 +1,161 @@
+"""``sim2real finetune`` on the full mock chain: the emulator behind a real pty, MuJoCo driven by
+its servos, rendered cameras, a spawned learner process with the SB3 model. The watchdog is
+relaxed (``MOCK``) and nothing here asserts a rate, a period or a jitter."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hardware.spec import ArmSpec
+from sim2real.cli.main import main
+from sim2real.deploy.runner import DeployOptions
+from sim2real.finetune.runner import FinetuneOptions, finetune
+
+from .conftest import MOCK  # type: ignore[import-not-found]
+
+ROOT = Path(__file__).resolve().parents[3]
+HANG_S = 240.0  # only turns a hang into a failure
+
+
+def _options(out: Path, **kw: Any) -> FinetuneOptions:
+    base: dict[str, Any] = {
+        "policy": "reach-ddpg",
+        "out": out,
+        "deploy": DeployOptions(**MOCK),
+        "minutes": 10.0,
+        "max_episodes": 1,
+        "learning_starts": 20,
+        "publish_every": 10,
+        "keys": False,
+        "start_timeout_s": 60.0,
+    }
+    return FinetuneOptions(**{**base, **kw})
+
+
+def _actor(zip_path: Path) -> np.ndarray:
+    from sim2real.finetune.actor import actor_arrays, flatten
+    from sim2real.train.algos import get_algo
+
+    model = get_algo("ddpg").cls.load(  # type: ignore[attr-defined]
+        str(zip_path), device="cpu", custom_objects={"buffer_size": 1}
+    )
+    return flatten(actor_arrays(model)[1])
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_mock_finetune_learns_within_limits_and_resume_continues(
+    tmp_path: Path, spec: ArmSpec
+) -> None:
+    out = tmp_path / "ft"
+    events: list[dict[str, Any]] = []
+    first = finetune(_options(out), spec, events.append)
+    assert first["stopped"] is None and first["episodes"] == 1
+    steps = first["env_steps"]
+    assert steps >= 1 and first["learner_updates"] > 0
+    assert not _alive(next(e["learner_pid"] for e in events if e["event"] == "learner_ready"))
+
+    # the actor the loop ran and the model the run dir carries both moved off the source
+    from sim2real.policies import shipped
+
+    source = shipped()["reach-ddpg"].checkpoint
+    assert source is not None
+    assert first["actor_weight_updates"] >= 1
+    assert not np.allclose(_actor(out / "model.zip"), _actor(source[0]))
+
+    # the guard and the joint limits held: every logged command is inside the spec's limits
+    log = np.load(out / "episodes" / "episode_00000.npz")
+    sent = log["sent_rad"]
+    lower = np.array([j.lower_rad for j in spec.joints])
+    upper = np.array([j.upper_rad for j in spec.joints])
+    n = len(lower)
+    assert len(sent) == steps
+    assert np.all(sent[:, :n] >= lower - 1e-9) and np.all(sent[:, :n] <= upper + 1e-9)
+    assert np.all(np.isfinite(sent))
+    assert first["safety"]["nonfinite"] == 0
+    assert first["safety"]["commands"] >= steps
+
+    # resume continues the counters (steps and episodes go on, updates too), not restart
+    second = finetune(_options(out, resume=True), spec)
+    assert second["episodes"] == 2 and second["episodes_this_run"] == 1
+    assert second["env_steps"] > steps
+    assert second["learner_updates"] > first["learner_updates"]
+    assert (out / "episodes" / "episode_00001.npz").is_file()
+    state = json.loads((out / "finetune.json").read_text())
+    assert state["segments"] == 2 and state["env_steps"] == second["env_steps"]
+    assert [e["episode"] for e in state["episode_log"]] == [0, 1]
+
+    # the output is a run directory: export and evaluate take it
+    assert main(["export", str(out), "--check", "5", "--json"]) == 0
+    assert (out / "policy.onnx").is_file()
+    assert main(["evaluate", str(out), "--episodes", "2", "--json", "--no-progress"]) == 0
+
+
+def _default_signals() -> None:
+    """The child's own dispositions: a background job inherits SIGINT ignored (NOTES.md)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
+
+
+@pytest.mark.slow
+def test_sigterm_mid_finetune_exits_143_checkpoints_and_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "ft"
+    cmd = [
+        sys.executable, "-m", "sim2real", "finetune", "reach-ddpg", "--out", str(out),
+        "--learning-starts", "20", "--watchdog-s", str(MOCK["watchdog_s"]),
+        "--start-timeout", "60", "--json", "--no-keys", "--minutes", "10",
+    ]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=_default_signals, env={**os.environ, "MUJOCO_GL": "egl"},
+    )  # fmt: skip
+    learner_pid = None
+    try:
+        assert proc.stdout is not None
+        deadline = time.monotonic() + HANG_S
+        for line in proc.stdout:
+            event = json.loads(line)
+            if event["event"] == "learner_ready":
+                learner_pid = event["learner_pid"]
+            if event["event"] == "episode":  # one episode done: stop in the next one
+                time.sleep(2.0)
+                proc.send_signal(signal.SIGTERM)
+                break
+            assert time.monotonic() < deadline, "no episode finished"
+        _, err = proc.communicate(timeout=HANG_S)
+        assert proc.returncode == 143, err[-2000:]
+        assert "interrupted (SIGTERM)" in err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if learner_pid is not None and _alive(learner_pid):
+            os.kill(learner_pid, signal.SIGKILL)
+            pytest.fail("the learner process outlived its parent")
+    state = json.loads((out / "finetune.json").read_text())
+    assert state["episodes"] >= 1 and state["stops"][-1]["reason"] == "SIGTERM"
+    assert (out / "checkpoints" / state["checkpoint"]).is_file()
+    steps = state["env_steps"]
+    resumed = subprocess.run(
+        [*cmd[:-2], "--minutes", "10", "--resume", "--max-episodes", "1"], cwd=ROOT,
+        capture_output=True, text=True, timeout=HANG_S, preexec_fn=_default_signals,
+    )  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    summary = json.loads(resumed.stdout.strip().splitlines()[-1])
+    assert summary["episodes"] == state["episodes"] + 1 and summary["env_steps"] > steps
