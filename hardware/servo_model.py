@@ -218,8 +218,7 @@ class StepServo:
         self._max_speed_rad_s = max_speed_rad_s
         self._dt_s = control_dt_s
         self.set()
-        self._applied = np.zeros(n)
-        self._queue: deque[np.ndarray] = deque()
+        self.reset(np.zeros(n))
 
     def set(
         self,
@@ -233,27 +232,33 @@ class StepServo:
         self.max_step_rad = self._max_speed_rad_s * max_speed_scale * self._dt_s
         self.deadband_rad = float(deadband_rad)
         self.quantum_rad = float(resolution_rad)
-        self._per_quantum = 1.0 / self.quantum_rad if self.quantum_rad > 0 else 0.0
+        self.per_quantum = 1.0 / self.quantum_rad if self.quantum_rad > 0 else 0.0
 
     def reset(self, targets_rad: np.ndarray) -> None:
         """Start at rest on ``targets_rad``, with the latency line full of it."""
-        self._applied = np.array(targets_rad, dtype=float)
-        self._queue = deque([self._applied.copy() for _ in range(self.latency_steps)])
+        self.applied_rad = np.array(targets_rad, dtype=float)
+        # The latency line as a ring (latency_steps, n) and its head, in arrays: the envs' compiled
+        # step (``sim2real.envs.fused.actuate``) advances this same state in place.
+        self.queue_rad = np.tile(self.applied_rad, (self.latency_steps, 1))
+        self.head = np.zeros(1, dtype=np.int64)
 
     def step(self, cmd_rad: np.ndarray) -> np.ndarray:
         """The actuator target for this step, given this step's command."""
         if self.latency_steps:
-            self._queue.append(cmd_rad)
-            cmd_rad = self._queue.popleft()
-        delta = cmd_rad - self._applied
+            h = int(self.head[0])
+            due = self.queue_rad[h].copy()
+            self.queue_rad[h] = cmd_rad
+            self.head[0] = (h + 1) % self.latency_steps
+            cmd_rad = due
+        delta = cmd_rad - self.applied_rad
         if self.deadband_rad > 0:
             delta *= np.abs(delta) >= self.deadband_rad
         np.minimum(delta, self.max_step_rad, out=delta)
         np.maximum(delta, -self.max_step_rad, out=delta)
-        out = self._applied + delta
+        out = self.applied_rad + delta
         if self.quantum_rad > 0:
             # ``quantise`` by the reciprocal: the same rounding but for last-bit ties, and the
             # bits the trained policies saw (pinned by tests/sim2real/randomization)
-            out = np.rint(out * self._per_quantum) * self.quantum_rad
-        self._applied = out
+            out = np.rint(out * self.per_quantum) * self.quantum_rad
+        self.applied_rad = out
         return out

@@ -28,7 +28,7 @@ class ServoActuation:
     def __init__(self, spec: ArmSpec, control_dt_s: float, n: int) -> None:
         self.servo = StepServo(n, spec.servo.max_speed_rad_s, control_dt_s)
         self.noise_rad = 0.0
-        self._noise = NoiseBuffer(n)
+        self.noise = NoiseBuffer(n)
 
     def configure(self, params: Mapping[str, Any]) -> None:
         """Apply DR's ``actuation`` parameters (``randomization.actuation.sample``)."""
@@ -41,12 +41,12 @@ class ServoActuation:
         )
 
     def reset(self, targets_rad: np.ndarray) -> None:
-        self._noise.clear()
+        self.noise.clear()
         self.servo.reset(targets_rad)
 
     def __call__(self, targets_rad: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Hot path (every env step)."""
         cmd = targets_rad
         if self.noise_rad > 0:
-            cmd = cmd + self.noise_rad * self._noise.take(rng)
+            cmd = cmd + self.noise_rad * self.noise.take(rng)
         return self.servo.step(cmd)

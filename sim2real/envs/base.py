@@ -4,6 +4,10 @@ Per control step: normalised action → ``ActionDecoder`` (joint-target deltas) 
 layer (noise, latency, dead band, speed limit, quantisation) → MuJoCo (``frame_skip`` physics
 steps) → sensor models (servo readings, stereo-shaped position noise, delay) →
 ``ObservationBuilder``. The deploy loop uses the same decoder and builder on real readings.
+
+The layers around the physics run compiled (``sim2real.envs.fused``), one call each side of
+``mj_step``: the same operations as the numpy models named above, which stay the reference that
+tests hold the kernels to, bit for bit.
 """
 
 from __future__ import annotations
@@ -11,7 +15,6 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -21,6 +24,7 @@ import numpy as np
 from hardware.safety import SafetyFilter
 from hardware.spec import ArmSpec, load_spec
 from sim2real.actuation import ServoActuation
+from sim2real.envs import fused
 from sim2real.envs.contract import DeployContract
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.model import ArmTwin, RigSpec, build_model
@@ -29,7 +33,6 @@ from sim2real.observation import (
     ActionDecoder,
     ObservationBuilder,
     ObsField,
-    command_readings,
 )
 from sim2real.randomization import DomainRandomizer, ModelIds, load_preset
 from sim2real.randomization.config import DRConfig
@@ -64,16 +67,6 @@ OBS_MODES: tuple[str, ...] = ("state", "goal", "pixels")
 START_DEFAULT, START_HELD = "default", "held"
 
 
-@dataclass(frozen=True)
-class Sensed:
-    """One step's sensor readings (what a policy may know), all in the base frame."""
-
-    joints_rad: np.ndarray  # (n_actuators_used,)
-    ee_m: np.ndarray  # (3,)
-    points_m: np.ndarray  # (k, 3) task points (target, cube, ...)
-    blind_s: np.ndarray  # (k,) time since each task point was last seen (0: seen now)
-
-
 class Task(ABC):
     """Target sampling, reward and success of one mission; the env does everything else."""
 
@@ -92,6 +85,19 @@ class Task(ABC):
     occludable: ClassVar[bool] = False
     # What the task needs outside the simulator (``sim2real.envs.contract``); None: sim only.
     contract: ClassVar[type[DeployContract] | None] = None
+    # The observed (achieved, desired) goal from the sensed readings, one of ``fused.GOAL_RULES``:
+    # "tool_to_point" (the tool, the first point) or "object_to_goal" (the first point, the
+    # grasp-aware estimate while the fingers hide it, and ``obs_aux[0]``).
+    goal_rule: ClassVar[str] = "tool_to_point"
+    # The grasp-aware estimate: a hidden object moves with the tool while the gripper reads this
+    # far open of "closed" while commanded closed (``pick.holding``); blind times cap here.
+    hold_margin_rad: ClassVar[float] = math.inf
+    blind_cap_s: ClassVar[float] = 0.0
+
+    def __init__(self) -> None:
+        # Vectors the compiled observation reads: row 0 the goal of "object_to_goal", row 1
+        # the ``goal_vel`` field. A task writes them when they change.
+        self.obs_aux = np.zeros((2, 3))
 
     @abstractmethod
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
@@ -110,10 +116,6 @@ class Task(ABC):
     @abstractmethod
     def true_points(self, env: Arm3Env) -> np.ndarray:
         """(k, 3) positions the cameras observe for this task, in the base frame."""
-
-    @abstractmethod
-    def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
-        """(achieved_goal, desired_goal) as the policy sees them (sensed values)."""
 
     @abstractmethod
     def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
@@ -143,10 +145,8 @@ class Task(ABC):
         return tuple(fields)
 
     def extra_fields(self) -> tuple[ObsField, ...]:
+        """Task fields after ``ee_pos``; each must be one of ``fused.FIELDS``."""
         return ()
-
-    def extra_readings(self, env: Arm3Env, sensed: Sensed) -> dict[str, np.ndarray]:
-        return {}
 
     def shaping(self, env: Arm3Env) -> float:
         """Extra dense reward outside the goal-based part (not seen by HER)."""
@@ -252,6 +252,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self.builder = ObservationBuilder(
             self.task.obs_fields(self._n_readings, self._n_act, obs_mode == "goal")
         )
+        self._init_fused()
 
         self.action_space = gym.spaces.Box(-1.0, 1.0, (self._n_act,), dtype=np.float32)
         vec = gym.spaces.Box(-np.inf, np.inf, (self.builder.size,), dtype=np.float32)
@@ -278,9 +279,6 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._prev_action = np.zeros(self._n_act)
         self._steps = 0
         self.dr_params: dict[str, Any] = {}
-        self._points_buf = np.zeros((1 + self.task.n_points, 3))
-        self._readings_buf = np.zeros(self._n_readings)  # sense(): the sensors copy it
-        self._not_blind = np.zeros(self.task.n_points)
         # Pixel variants report the true state in info["privileged_state"], for training-only
         # critics and teachers (sim2real.train); the observation never holds it.
         n_priv = self._n_readings + len(self._targets) + 3 * (1 + self.task.n_points)
@@ -301,6 +299,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self.actuation.configure(self.dr_params["actuation"])
         self.sensors.configure(self.dr_params["sensing"])
         self.sensors.reset()
+        self._configure_fused()
 
         mujoco.mj_resetData(self.model, self.data)
         spec = self.spec_arm
@@ -320,30 +319,38 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         if start == START_HELD:
             self._start_held(rng, height_m)
         mujoco.mj_forward(self.model, self.data)
-        obs = self._observe()
+        obs, _ = self._observe()
         info = {"dr": self.dr_params, "is_success": self.task.is_success(self), "start": start}
         if self.privileged_space is not None:
             info["privileged_state"] = self.privileged_state()
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
-        a = np.minimum(np.maximum(action, -1.0), 1.0)
-        self._targets = self.decoder.decode_clipped(a, self._targets)
-        n = self.spec_arm.n_joints
+        action = np.asarray(action)
+        if action.dtype != np.float32:  # a float32 action scales in float32, as numpy does
+            action = action.astype(np.float64)
+        a = np.empty_like(action)
+        targets = np.empty_like(self._targets)
+        fused.decode(
+            action, a, self._targets, targets, self._lo_rad, self._hi_rad,
+            self._max_delta[action.dtype], self._decode_grip,
+        )  # fmt: skip
+        self._targets = targets
         if self._safety is None:
-            self._sent = self._targets
+            self._sent = targets
         else:
-            self._sent = self._safety.filter(self._targets, self._sent)
-        joint_ctrl = self.actuation(self._sent[:n], self.np_random)
-        self._write_ctrl(joint_ctrl)
+            self._sent = self._safety.filter(targets, self._sent)
+        act, servo = self.actuation, self.actuation.servo
+        noise = act.noise.take(self.np_random) if act.noise_rad > 0 else self._no_noise
+        fused.actuate(
+            self._sent, noise, act.noise_rad, self._servo_prm, servo.applied_rad,
+            servo.queue_rad, servo.head, self.data.ctrl, self._ctrl_grip,
+        )  # fmt: skip
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         self.task.after_step(self)
         self._prev_action = a
         self._steps += 1
-        obs = self._observe()
-        achieved, desired = self.task.true_goals(self)
-        diff = achieved - desired
-        d = math.sqrt(diff @ diff)
+        obs, d = self._observe()
         success = self.task.success_from_distance(self, d)
         reward = float(self._reward_fn(d, d < self.task.success_threshold_m))
         if self.obs_mode != "goal":  # HER recomputes rewards from goals alone
@@ -436,52 +443,106 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         points = self.task.true_points(self).reshape(-1)
         return np.concatenate([q, self._targets, tool, points]).astype(np.float32)
 
-    def sense(self) -> Sensed:
-        rng = self.np_random
-        q = self.data.qpos[self._qadr]
-        if self.task.uses_gripper:  # joints, then the gripper: filled in place, not appended
-            q_buf = self._readings_buf
-            q_buf[:-1] = q
-            q_buf[-1] = self.gripper_angle_rad()
-            q = q_buf
-        pts = self._points_buf
-        pts[0] = self.data.site_xpos[self._tool_site]
-        pts[1:] = self.task.true_points(self)
-        joints, est = self.sensors.read(q, pts, rng)
-        blind = self._not_blind
-        if self.task.occludable:
-            held, blind_steps = self.sensors.occlude(est[1:], pts[0], pts[1:], rng)
-            est = np.concatenate([est[:1], held])
-            blind = blind_steps * self.control_dt_s
-        if self.sensors.delay_steps:
-            joints, est, blind = self.sensors.delay(joints, est, blind)
-        return Sensed(joints, est[0], est[1:], blind)
+    def _init_fused(self) -> None:
+        """What the compiled step needs that a reset does not change (``sim2real.envs.fused``)."""
+        spec, n_j = self.spec_arm, self.spec_arm.n_joints
+        unknown = [f.name for f in self.builder.fields if f.name not in fused.FIELDS]
+        if unknown:
+            raise ConfigError(
+                f"observation fields {unknown} have no source; known: {[*fused.FIELDS]}"
+            )
+        if self.task.goal_rule not in fused.GOAL_RULES:
+            raise UnknownNameError("goal_rule", self.task.goal_rule, fused.GOAL_RULES)
+        self._layout = np.array(
+            [(fused.FIELDS[f.name], f.start, f.stop - f.start) for f in self.builder.layout()],
+            dtype=np.int64,
+        )
+        md = self.decoder.max_delta_rad
+        self._max_delta = {np.dtype(np.float32): np.float32(md), np.dtype(np.float64): md}
+        self._lo_rad, self._hi_rad = spec.lower_rad, spec.upper_rad
+        g = spec.gripper
+        closed, opened, gap = (g.closed_rad, g.open_rad, g.max_gap_m) if g else (0.0, 1.0, 1.0)
+        self._decode_grip = np.array(
+            [float(self.decoder.use_gripper and g is not None), closed, opened]
+        )
+        self._ctrl_grip = np.array([float(self.twin.has_gripper), closed, opened, gap])
+        self._no_noise = np.zeros(n_j)
+        self._servo_prm = np.zeros(4)
+        grip_reading = self.task.uses_gripper
+        self._obs_qadr = np.append(self._qadr, self.twin.finger_qadr[:1] if grip_reading else [])
+        self._obs_qadr = self._obs_qadr.astype(np.int64)
+        links, signs = spec.links, [j.sign for j in spec.joints[:3]]
+        prm = np.zeros(fused.N_PRM)
+        prm[fused.P_DT] = self.control_dt_s
+        prm[fused.P_GRIP_CLOSED : fused.P_GRIP_READ + 1] = (closed, opened, gap, grip_reading)
+        prm[fused.P_HOLD_MARGIN] = self.task.hold_margin_rad
+        prm[fused.P_BLIND_CAP] = self.task.blind_cap_s
+        prm[fused.P_SIGN0 : fused.P_SIGN2 + 1] = signs
+        prm[fused.P_UPPER : fused.P_TOOL_DOWN + 1] = (
+            links.upper_arm_m, links.forearm_m, links.tool_forward_m, links.base_height_m,
+            links.tool_down_m,
+        )  # fmt: skip
+        prm[fused.P_GOAL_RULE] = fused.GOAL_RULES[self.task.goal_rule]
+        prm[fused.P_OCCLUDABLE] = self.task.occludable
+        self._prm = prm
+        self._obs_state = np.zeros(fused.N_STATE, dtype=np.int64)
+        k = self.task.n_points
+        self._no_uniforms = np.zeros((2, k))
+        self._last_seen = np.zeros((k, 3))
+        self._blind_steps = np.zeros(k)
+        self._goals = np.zeros((2, 3))
 
-    def _observe(self) -> Any:
+    def _configure_fused(self) -> None:
+        """The episode's servo and sensor parameters into the compiled step's arrays."""
+        servo, sensors = self.actuation.servo, self.sensors
+        self._servo_prm[:] = (
+            servo.max_step_rad,
+            servo.deadband_rad,
+            servo.quantum_rad,
+            servo.per_quantum,
+        )
+        prm = self._prm
+        prm[fused.P_JOINT_NOISE] = sensors.joint_noise
+        prm[fused.P_RESOLUTION] = sensors.resolution_rad
+        prm[fused.P_INV_RESOLUTION] = sensors.inv_resolution
+        prm[fused.P_PX_NOISE] = sensors.px_noise
+        prm[fused.P_OCC_RADIUS] = sensors.occlusion_radius_m
+        prm[fused.P_OCC_PROB] = sensors.occlusion_prob
+        prm[fused.P_DROPOUT] = sensors.dropout_prob
+        delay, k = sensors.delay_steps, self.task.n_points
+        self._obs_state[:] = (delay, 0, 0)
+        self._hist_joints = np.zeros((delay + 1, self._n_readings))
+        self._hist_points = np.zeros((delay + 1, k + 1, 3))
+        self._hist_blind = np.zeros((delay + 1, k))
+
+    def _observe(self) -> tuple[Any, float]:
+        """The observation and the true achieved-to-desired distance (what success and reward
+        are judged on). One compiled call senses (``SensorModel``: read, occlude, delay), forms
+        the task's goal and fills the layout; the random draws are made here, in the order and
+        number the numpy models make them."""
+        achieved, desired = self.task.true_goals(self)
         if self.obs_mode == "pixels":
-            return self._pixels()
-        sensed = self.sense()
-        achieved, desired = self.task.goals(self, sensed)
-        readings = {
-            "joint_pos": sensed.joints_rad,
-            "joint_target": self._targets[: self._n_readings],
-            "ee_pos": sensed.ee_m,
-            "goal_pos": desired,
-            "goal_delta": desired - achieved,
-            "prev_action": self._prev_action,
-            **self.task.extra_readings(self, sensed),
-        }
-        if self.task.command_fields:  # the goal env's layout has no target_goal_delta
-            goal = None if self.obs_mode == "goal" else desired
-            readings.update(command_readings(self.spec_arm, self._targets, goal))
-        vec = self.builder.build(readings)
+            diff = achieved - desired
+            return self._pixels(), math.sqrt(diff @ diff)
+        rng = self.np_random
+        sensors, state = self.sensors, self._obs_state
+        points = self.task.true_points(self)
+        noise = sensors.draw(len(points) + 1, rng)
+        occluding = self.task.occludable and state[fused.S_SEEN]
+        uniforms = rng.random((2, len(points))) if occluding else self._no_uniforms
+        vec = np.empty(self.builder.size, dtype=np.float32)
+        d = fused.observe(
+            self.data.qpos, self._obs_qadr, self.data.site_xpos[self._tool_site], points,
+            self._prm, sensors.joint_bias, sensors.pos_bias, sensors.sigma_coef, sensors.cam_p_m,
+            sensors.cam_z, sensors.base_R_cam, noise, uniforms, self._last_seen,
+            self._blind_steps, state, self._hist_joints, self._hist_points, self._hist_blind,
+            self._targets, self._prev_action, self.task.obs_aux, self._layout, achieved, desired,
+            vec, self._goals,
+        )  # fmt: skip
         if self.obs_mode == "goal":
-            return {
-                "observation": vec,
-                "achieved_goal": achieved.astype(np.float32),
-                "desired_goal": desired.astype(np.float32),
-            }
-        return vec
+            goals = self._goals.astype(np.float32)
+            return {"observation": vec, "achieved_goal": goals[0], "desired_goal": goals[1]}, d
+        return vec, d
 
     def _pixels(self) -> np.ndarray:
         if self._pixel_renderer is None:

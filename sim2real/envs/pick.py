@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
 from sim2real import model as names
-from sim2real.envs.base import START_DEFAULT, START_HELD, Sensed, Task, register_task
+from sim2real.envs import fused
+from sim2real.envs.base import START_DEFAULT, START_HELD, Task, register_task
 from sim2real.envs.contract import DeployContract, Outcome, Percept, View, need
 from sim2real.errors import ConfigError
 from sim2real.observation import ObsField
@@ -191,14 +191,22 @@ class PickTask(Task):
     occludable = True  # the fingers hide the cube's markers during a grasp
     command_fields = True
     contract = PickContract
+    # Observed: the cube estimate (``cube_estimate``: with the tool while the fingers hold it
+    # out of sight) against the lift goal.
+    goal_rule = "object_to_goal"
+    hold_margin_rad = HOLD_MARGIN_RAD
+    blind_cap_s = BLIND_CAP_S
 
     def __init__(self) -> None:
+        super().__init__()
         self.goal_m = np.zeros(3)
         self.rest_z_m = 0.0  # cube centre height resting on the table
         self._cube_qadr = -1
         self._finger_geoms: frozenset[int] = frozenset()
-        self._estimated_for: Sensed | None = None
-        self._estimate = np.zeros(3)
+        self._finger_ids = np.zeros(0, dtype=np.int32)
+        self._shaping_weights = np.array(
+            [REACH_WEIGHT_PER_M, GRASP_BONUS, LIFT_WEIGHT_PER_M, LIFT_M]
+        )
 
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
         m = env.model
@@ -207,6 +215,7 @@ class PickTask(Task):
             self._cube_body = m.body(names.CUBE_BODY).id
             self._cube_geom = m.geom(names.CUBE_GEOM).id
             self._finger_geoms = frozenset(m.geom(g).id for g in names.FINGER_GEOMS)
+            self._finger_ids = np.array(sorted(self._finger_geoms), dtype=np.int32)
         xy, yaw = sample_cube_pose(rng)
         xy = xy + env.dr_params.get("object", {}).get("init_xy_offset_m", np.zeros(2))
         half = float(m.geom_size[env.ids.cube_geom][2])
@@ -216,6 +225,7 @@ class PickTask(Task):
         q[a + 3 : a + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         self.rest_z_m = half
         self.goal_m = lift_goal(np.array([xy[0], xy[1], half]))
+        self.obs_aux[0] = self.goal_m
         env.data.mocap_pos[0] = self.goal_m
         mujoco.mj_forward(m, env.data)
 
@@ -270,22 +280,6 @@ class PickTask(Task):
     def true_points(self, env: Arm3Env) -> np.ndarray:
         return self.cube_position(env)[None]
 
-    def _cube_estimate(self, env: Arm3Env, sensed: Sensed) -> np.ndarray:
-        """The contract's grasp-aware prediction on the env's sensed readings, once per step
-        (``goals`` and ``extra_readings`` both ask for it)."""
-        if self._estimated_for is sensed:
-            return self._estimate
-        blind = float(sensed.blind_s[0])
-        cube = sensed.points_m[0]
-        if blind > 0.0:
-            is_holding = holding(env.spec_arm, env.commanded_rad(), sensed.joints_rad)
-            cube = cube_estimate(cube, sensed.ee_m, blind, is_holding)
-        self._estimated_for, self._estimate = sensed, cube
-        return cube
-
-    def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
-        return self._cube_estimate(env, sensed), self.goal_m
-
     def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
         return self.cube_position(env), self.goal_m
 
@@ -297,10 +291,6 @@ class PickTask(Task):
                 "cube_blind_s", 1, "s", f"time since the cube was last seen (cap {BLIND_CAP_S})"
             ),
         )
-
-    def extra_readings(self, env: Arm3Env, sensed: Sensed) -> dict[str, np.ndarray]:
-        cube = self._cube_estimate(env, sensed)
-        return cube_readings(sensed.ee_m, cube, float(sensed.blind_s[0]))
 
     def is_grasped(self, env: Arm3Env) -> bool:
         """Both fingers touch the cube (from MuJoCo's contact list)."""
@@ -329,8 +319,9 @@ class PickTask(Task):
         bonus that a fumble loses. The lift term pays +10/m more while grasped (at most +0.7 at the
         lift goal): holding the cube 5 cm up, the shaping pays 1.0 per step against 0.5 on the
         table, and a cube knocked upwards without a grasp earns nothing from it."""
-        v = env.ee_position() - self.cube_position(env)
-        reach = -REACH_WEIGHT_PER_M * math.sqrt(float(v.dot(v)))  # np.linalg.norm's bits
-        if not self.is_grasped(env):
-            return reach
-        return reach + GRASP_BONUS + LIFT_WEIGHT_PER_M * self.lift_m(env)
+        return float(
+            fused.grasp_shaping(
+                env.ee_position(), self.cube_position(env), env.data.contact.geom,
+                self._cube_geom, self._finger_ids, self.rest_z_m, self._shaping_weights,
+            )
+        )  # fmt: skip

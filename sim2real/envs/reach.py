@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sim2real.envs.base import Sensed, Task, register_task
+from sim2real.envs.base import Task, register_task
 from sim2real.envs.reach_contract import ReachContract
 from sim2real.envs.workspace import sample_reachable
 
@@ -23,6 +23,7 @@ class ReachTask(Task):
     contract = ReachContract
 
     def __init__(self) -> None:
+        super().__init__()
         self.target_m = np.zeros(3)
 
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
@@ -31,9 +32,6 @@ class ReachTask(Task):
 
     def true_points(self, env: Arm3Env) -> np.ndarray:
         return self.target_m[None]
-
-    def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
-        return sensed.ee_m, sensed.points_m[0]
 
     def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
         return env.ee_position(), self.target_m

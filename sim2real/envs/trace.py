@@ -9,7 +9,7 @@ import numpy as np
 
 from hardware.spec import ArmSpec
 from sim2real import model as names
-from sim2real.envs.base import Sensed, Task, register_task
+from sim2real.envs.base import Task, register_task
 from sim2real.envs.contract import DeployContract, Outcome, Percept, View, need
 from sim2real.observation import ObsField
 
@@ -131,6 +131,7 @@ class TraceTask(Task):
     contract = TraceContract
 
     def __init__(self) -> None:
+        super().__init__()
         self.start_m = np.zeros(3)
         self.dir = np.array([1.0, 0.0, 0.0])
         self.target_m = np.zeros(3)
@@ -154,6 +155,7 @@ class TraceTask(Task):
             self.start_m, self.dir, step, env.max_episode_steps, env.control_dt_s
         )
         env.data.mocap_pos[0] = self.target_m
+        self.obs_aux[1] = self.velocity_m_s  # the goal_vel field
 
     def after_step(self, env: Arm3Env) -> None:
         if env.steps + 1 > APPROACH_STEPS:  # env.steps is incremented after this hook
@@ -164,17 +166,11 @@ class TraceTask(Task):
     def true_points(self, env: Arm3Env) -> np.ndarray:
         return self.target_m[None]
 
-    def goals(self, env: Arm3Env, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
-        return sensed.ee_m, sensed.points_m[0]
-
     def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
         return env.ee_position(), self.target_m
 
     def extra_fields(self) -> tuple[ObsField, ...]:
         return (ObsField("goal_vel", 3, "m/s", "velocity of the seam point to follow"),)
-
-    def extra_readings(self, env: Arm3Env, sensed: Sensed) -> dict[str, np.ndarray]:
-        return {"goal_vel": self.velocity_m_s}
 
     def success_from_distance(self, env: Arm3Env, distance_m: float) -> bool:
         """Mean tracking error along the seam, not the last step's distance."""

@@ -50,11 +50,13 @@ class SensorModel:
         baseline_m: float,
     ) -> None:
         self._n = n_joints
-        self._resolution = resolution_rad
-        self._inv_resolution = 1.0 / resolution_rad if resolution_rad > 0 else 0.0
-        self._R = np.asarray(base_R_cam, dtype=float)  # OpenCV camera axes in the base frame
-        self._cam_p = np.asarray(base_p_cam_m, dtype=float)
-        self._cam_z = self._R[:, 2].copy()
+        self.resolution_rad = resolution_rad
+        self.inv_resolution = 1.0 / resolution_rad if resolution_rad > 0 else 0.0
+        self.base_R_cam = np.asarray(
+            base_R_cam, dtype=float
+        )  # OpenCV camera axes in the base frame
+        self.cam_p_m = np.asarray(base_p_cam_m, dtype=float)
+        self.cam_z = self.base_R_cam[:, 2].copy()
         self._f = focal_px
         self._B = baseline_m
         self.configure(
@@ -86,7 +88,7 @@ class SensorModel:
         self.occlusion_radius_m = float(params.get("occlusion_radius_m", 0.0))
         self.occlusion_prob = float(params.get("occlusion_prob", 0.0))
         px = self.px_noise
-        self._sigma_coef = np.array(
+        self.sigma_coef = np.array(
             [px / self._f, px / self._f, np.sqrt(2.0) * px / (self._f * self._B)]
         )
         self._history = deque(maxlen=self.delay_steps + 1)
@@ -95,13 +97,13 @@ class SensorModel:
         out = q_rad + self.joint_bias
         if self.joint_noise > 0:
             out += rng.normal(0.0, self.joint_noise, self._n)
-        if self._resolution > 0:
-            out = np.rint(out * self._inv_resolution) * self._resolution
+        if self.resolution_rad > 0:
+            out = np.rint(out * self.inv_resolution) * self.resolution_rad
         return out
 
     def stereo_sigma_m(self, base_p_m: np.ndarray) -> np.ndarray:
         """Per-axis σ (k, 3) in the camera frame for points (k, 3): lateral, lateral, depth."""
-        depth = np.maximum((np.atleast_2d(base_p_m) - self._cam_p) @ self._R[:, 2], 1e-3)
+        depth = np.maximum((np.atleast_2d(base_p_m) - self.cam_p_m) @ self.base_R_cam[:, 2], 1e-3)
         lateral = depth * self.px_noise / self._f
         axial = depth * depth * np.sqrt(2.0) * self.px_noise / (self._f * self._B)
         return np.stack([lateral, lateral, axial], axis=1)
@@ -110,12 +112,20 @@ class SensorModel:
         """Noisy estimates (k, 3) of k points (k, 3) in the base frame (hot path)."""
         out = points_m + self.pos_bias
         if self.px_noise > 0:
-            depth = (points_m - self._cam_p) @ self._cam_z  # (k,)
+            depth = (points_m - self.cam_p_m) @ self.cam_z  # (k,)
             # σ per camera axis = depth · (px/f) laterally, depth² · √2·px/(f·B) along z.
-            scale = np.multiply.outer(depth, self._sigma_coef)
+            scale = np.multiply.outer(depth, self.sigma_coef)
             scale[:, 2] *= depth
-            out += (rng.standard_normal(points_m.shape) * scale) @ self._R.T
+            out += (rng.standard_normal(points_m.shape) * scale) @ self.base_R_cam.T
         return out
+
+    def draw(self, k: int, rng: np.random.Generator) -> np.ndarray:
+        """This step's standard normals for the joints and k points (n + 3k,): one RNG call per
+        block of steps. ``read`` uses them, and so does the envs' compiled step."""
+        dim = self._n + 3 * k
+        if self._noise is None or self._noise.dim != dim:
+            self._noise = NoiseBuffer(dim)
+        return self._noise.take(rng)
 
     def read(
         self, q_rad: np.ndarray, points_m: np.ndarray, rng: np.random.Generator
@@ -123,20 +133,18 @@ class SensorModel:
         """Joint readings (n,) and point estimates (k, 3) from one block of pre-drawn noise:
         the env's per-step path (``read_joints``/``read_points`` are the readable reference)."""
         n, k = self._n, len(points_m)
-        if self._noise is None or self._noise.dim != n + 3 * k:
-            self._noise = NoiseBuffer(n + 3 * k)
-        z = self._noise.take(rng)
+        z = self.draw(k, rng)
         joints = q_rad + self.joint_bias
         if self.joint_noise > 0:
             joints += self.joint_noise * z[:n]
-        if self._resolution > 0:
-            joints = np.rint(joints * self._inv_resolution) * self._resolution
+        if self.resolution_rad > 0:
+            joints = np.rint(joints * self.inv_resolution) * self.resolution_rad
         points = points_m + self.pos_bias
         if self.px_noise > 0:
-            depth = (points_m - self._cam_p) @ self._cam_z
-            scale = np.multiply.outer(depth, self._sigma_coef)
+            depth = (points_m - self.cam_p_m) @ self.cam_z
+            scale = np.multiply.outer(depth, self.sigma_coef)
             scale[:, 2] *= depth
-            points += (z[n:].reshape(k, 3) * scale) @ self._R.T
+            points += (z[n:].reshape(k, 3) * scale) @ self.base_R_cam.T
         return joints, points
 
     def occlude(

@@ -1,0 +1,402 @@
+"""The arm envs' per-step layers compiled (numba): action decoding, the servo, the sensor models,
+the observation and the true distance, one call each side of the physics.
+
+Why: the numpy layers cost ~100 calls on 3-element arrays per step, more than half the physics
+again (BENCHMARKS.md, "The step path"). Each kernel here does the *same* floating-point
+operations in the same order as its numpy reference, so the envs return the same bits
+(``tests/sim2real/envs/test_step_pin.py``); ``tests/sim2real/envs/test_fused.py`` holds every
+kernel equal to its reference on random inputs:
+
+* ``decode`` ≡ ``observation.ActionDecoder.decode``;
+* ``actuate`` ≡ ``actuation.ServoActuation`` (``hardware.servo_model.StepServo``), on its state;
+* ``observe`` ≡ ``randomization.sensing.SensorModel`` (``read`` → ``occlude`` → ``delay``), the
+  tasks' goal rules and ``observation.command_readings`` / ``ObservationBuilder.build``.
+
+numpy hands 3-element dot products to OpenBLAS, whose kernels fuse multiply-adds: ``_dot3`` and
+friends reproduce those roundings with explicit FMAs. Random draws stay in numpy's Generator on
+the Python side, in the order and number the reference draws them, and come in as arrays.
+
+Kernels are cached on disk (``cache=True``) so a test process loads them instead of compiling;
+where no cache directory is writable they compile per process.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numba
+import numpy as np
+from numba.core import types
+from numba.extending import intrinsic
+
+
+def _jit(fn: Callable[..., Any]) -> Any:
+    try:
+        return numba.njit(cache=True)(fn)
+    except RuntimeError:  # no writable cache directory: compile in this process
+        return numba.njit(cache=False)(fn)
+
+
+def _fma_typing(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        return builder.fma(*args)
+
+    return sig, codegen
+
+
+# fma(a, b, c) = a·b + c with one rounding (LLVM's fma), as OpenBLAS's kernels compute it
+_fma: Any = intrinsic(_fma_typing)
+
+
+@_jit
+def _dot3(x0: float, x1: float, x2: float, y0: float, y1: float, y2: float) -> float:
+    """``x @ y`` of two 3-vectors as numpy computes it (OpenBLAS ddot)."""
+    return _fma(x2, y2, _fma(x1, y1, x0 * y0))
+
+
+@_jit
+def _gemv3(a0: float, a1: float, a2: float, v0: float, v1: float, v2: float) -> float:
+    """One row of ``A @ v`` for A (2, 3), v (3,) as numpy computes it (OpenBLAS dgemv)."""
+    return _fma(a2, v2, _fma(a0, v0, a1 * v1))
+
+
+@_jit
+def _clip(x: float, lo: float, hi: float) -> float:
+    """``min(max(x, lo), hi)`` with numpy's and Python's NaN and signed-zero behaviour."""
+    if lo > x:
+        x = lo
+    if x > hi:
+        x = hi
+    return x
+
+
+# ---- action side ------------------------------------------------------------------------------
+@_jit
+def decode(
+    action: np.ndarray,
+    a_out: np.ndarray,
+    previous_rad: np.ndarray,
+    targets_out: np.ndarray,
+    lower_rad: np.ndarray,
+    upper_rad: np.ndarray,
+    max_delta: Any,
+    grip: np.ndarray,
+) -> None:
+    """Clip the action into ``a_out`` (the action's dtype: a float32 action scales in float32,
+    as numpy does) and write the new actuator targets. ``grip``: [use, closed_rad, open_rad]."""
+    for i in range(action.shape[0]):
+        a_out[i] = _clip(action[i], -1.0, 1.0)
+    for i in range(previous_rad.shape[0]):
+        targets_out[i] = previous_rad[i]
+    n = lower_rad.shape[0]
+    for i in range(n):
+        targets_out[i] = _clip(targets_out[i] + a_out[i] * max_delta, lower_rad[i], upper_rad[i])
+    if grip[0] > 0.0:
+        targets_out[n] = grip[1] + (np.float64(a_out[n]) + 1.0) / 2.0 * (grip[2] - grip[1])
+
+
+@_jit
+def actuate(
+    sent_rad: np.ndarray,
+    noise: np.ndarray,
+    noise_rad: float,
+    servo: np.ndarray,
+    applied_rad: np.ndarray,
+    queue_rad: np.ndarray,
+    head: np.ndarray,
+    ctrl: np.ndarray,
+    grip: np.ndarray,
+) -> None:
+    """The servo's actuator targets for this step into ``ctrl`` (MuJoCo's), ``StepServo``'s state
+    updated in place. ``servo``: [max_step_rad, deadband_rad, quantum_rad, per_quantum];
+    ``grip``: [has_gripper, closed_rad, open_rad, max_gap_m]: the finger command from the
+    gripper target (``model.gripper_rad_to_finger_m``)."""
+    n = applied_rad.shape[0]
+    latency = queue_rad.shape[0]
+    max_step, deadband, quantum, per_quantum = servo[0], servo[1], servo[2], servo[3]
+    h = head[0]
+    for i in range(n):
+        cmd = sent_rad[i]
+        if noise_rad > 0:
+            cmd = cmd + noise_rad * noise[i]
+        if latency:
+            due = queue_rad[h, i]
+            queue_rad[h, i] = cmd
+            cmd = due
+        delta = cmd - applied_rad[i]
+        if deadband > 0:
+            delta = delta * (1.0 if abs(delta) >= deadband else 0.0)
+        if delta > max_step:  # np.minimum, then np.maximum: NaN passes, as there
+            delta = max_step
+        if -max_step > delta:
+            delta = -max_step
+        out = applied_rad[i] + delta
+        if quantum > 0:
+            out = np.rint(out * per_quantum) * quantum
+        applied_rad[i] = out
+        ctrl[i] = out
+    if latency:
+        head[0] = (h + 1) % latency
+    if grip[0] > 0.0:
+        frac = _clip((sent_rad[sent_rad.shape[0] - 1] - grip[1]) / (grip[2] - grip[1]), 0.0, 1.0)
+        ctrl[n] = frac * grip[3] / 2
+
+
+# ---- observation side -------------------------------------------------------------------------
+# Parameter slots of ``observe``'s ``prm`` (float64) and ``state`` (int64) arrays.
+P_JOINT_NOISE, P_RESOLUTION, P_INV_RESOLUTION, P_PX_NOISE = 0, 1, 2, 3
+P_OCC_RADIUS, P_OCC_PROB, P_DROPOUT, P_DT = 4, 5, 6, 7
+P_GRIP_CLOSED, P_GRIP_OPEN, P_GRIP_GAP, P_GRIP_READ = 8, 9, 10, 11
+P_HOLD_MARGIN, P_BLIND_CAP, P_SIGN0, P_SIGN1, P_SIGN2 = 12, 13, 14, 15, 16
+P_UPPER, P_FORE, P_TOOL_FWD, P_BASE_H, P_TOOL_DOWN = 17, 18, 19, 20, 21
+P_GOAL_RULE, P_OCCLUDABLE, N_PRM = 22, 23, 24
+S_DELAY, S_COUNT, S_SEEN, N_STATE = 0, 1, 2, 3
+
+# How a task's observed goal is formed (``Task.goal_rule``): (achieved, desired).
+GOAL_RULES = {
+    "tool_to_point": 0,  # the tool estimate, the first task point's estimate
+    "object_to_goal": 1,  # the grasp-aware object estimate, the task's goal (``Task.obs_aux[0]``)
+}
+# Observation fields the kernel fills, by name (``ObsField.name``).
+FIELDS = {
+    "joint_pos": 0,
+    "ee_pos": 1,
+    "goal_pos": 2,
+    "goal_delta": 3,
+    "joint_target": 4,
+    "target_ee_pos": 5,
+    "target_goal_delta": 6,
+    "prev_action": 7,
+    "cube_pos": 8,  # the grasp-aware object estimate (``pick.cube_estimate``)
+    "cube_delta": 9,
+    "cube_blind_s": 10,
+    "goal_vel": 11,  # ``Task.obs_aux[1]``
+}
+
+
+@_jit
+def _put(obs: np.ndarray, start: int, x0: float, x1: float, x2: float) -> None:
+    obs[start] = np.float32(x0)
+    obs[start + 1] = np.float32(x1)
+    obs[start + 2] = np.float32(x2)
+
+
+@_jit
+def observe(
+    qpos: np.ndarray,
+    qadr: np.ndarray,
+    tool_m: np.ndarray,
+    true_points_m: np.ndarray,
+    prm: np.ndarray,
+    joint_bias_rad: np.ndarray,
+    pos_bias_m: np.ndarray,
+    sigma_coef: np.ndarray,
+    cam_p_m: np.ndarray,
+    cam_z: np.ndarray,
+    base_R_cam: np.ndarray,
+    noise: np.ndarray,
+    uniforms: np.ndarray,
+    last_seen_m: np.ndarray,
+    blind_steps: np.ndarray,
+    state: np.ndarray,
+    hist_joints: np.ndarray,
+    hist_points: np.ndarray,
+    hist_blind: np.ndarray,
+    targets_rad: np.ndarray,
+    prev_action: np.ndarray,
+    aux: np.ndarray,
+    layout: np.ndarray,
+    true_achieved_m: np.ndarray,
+    true_desired_m: np.ndarray,
+    obs: np.ndarray,
+    goals_out: np.ndarray,
+) -> float:
+    """Sense, observe, and judge one step; returns the true achieved-to-desired distance.
+
+    ``qadr``: the joints' qpos addresses, then (with a gripper reading) the first finger's.
+    ``noise``: this step's standard normals (joints, then 3 per point: the tool, the task's);
+    ``uniforms`` (2, k): the occlusion draws (unused on the first call after a reset).
+    ``layout`` rows: (``FIELDS`` code, start, size). ``goals_out`` (2, 3): achieved, desired.
+    """
+    n_r = joint_bias_rad.shape[0]
+    n_j = n_r - 1 if prm[P_GRIP_READ] > 0.0 else n_r
+    k = true_points_m.shape[0]
+    joints = np.empty(n_r)
+    points = np.empty((k + 1, 3))
+    blind = np.zeros(k)
+    # --- SensorModel.read: bias, noise, quantisation; stereo-shaped position noise
+    jn, res, inv_res = prm[P_JOINT_NOISE], prm[P_RESOLUTION], prm[P_INV_RESOLUTION]
+    for i in range(n_j):
+        joints[i] = qpos[qadr[i]]
+    if n_j < n_r:  # the gripper reading (``model.finger_m_to_gripper_rad``)
+        closed, opened = prm[P_GRIP_CLOSED], prm[P_GRIP_OPEN]
+        frac = _clip(2 * qpos[qadr[n_j]] / prm[P_GRIP_GAP], 0.0, 1.0)
+        joints[n_j] = closed + frac * (opened - closed)
+    for i in range(n_r):
+        v = joints[i] + joint_bias_rad[i]
+        if jn > 0:
+            v = v + jn * noise[i]
+        if res > 0:
+            v = np.rint(v * inv_res) * res
+        joints[i] = v
+    px = prm[P_PX_NOISE]
+    for r in range(k + 1):
+        p = tool_m if r == 0 else true_points_m[r - 1]
+        for c in range(3):
+            points[r, c] = p[c] + pos_bias_m[c]
+        if px > 0:
+            depth = _gemv3(
+                p[0] - cam_p_m[0],
+                p[1] - cam_p_m[1],
+                p[2] - cam_p_m[2],
+                cam_z[0],
+                cam_z[1],
+                cam_z[2],
+            )
+            z = noise[n_r + 3 * r : n_r + 3 * r + 3]
+            m0 = z[0] * (depth * sigma_coef[0])
+            m1 = z[1] * (depth * sigma_coef[1])
+            m2 = z[2] * (depth * sigma_coef[2] * depth)
+            for c in range(3):
+                R = base_R_cam[c]
+                points[r, c] = points[r, c] + _fma(m2, R[2], _fma(m1, R[1], m0 * R[0]))
+    # --- SensorModel.occlude: objects the fingers hide hold their last estimate
+    if prm[P_OCCLUDABLE] > 0.0:
+        if state[S_SEEN] == 0:
+            for p in range(k):
+                for c in range(3):
+                    last_seen_m[p, c] = points[p + 1, c]
+                blind_steps[p] = 0.0
+            state[S_SEEN] = 1
+        else:
+            for p in range(k):
+                d0 = true_points_m[p, 0] - tool_m[0]
+                d1 = true_points_m[p, 1] - tool_m[1]
+                d2 = true_points_m[p, 2] - tool_m[2]
+                near = math.sqrt(d0 * d0 + (d1 * d1 + d2 * d2)) < prm[P_OCC_RADIUS]
+                hidden = (near and uniforms[0, p] < prm[P_OCC_PROB]) or (
+                    uniforms[1, p] < prm[P_DROPOUT]
+                )
+                if hidden:
+                    blind_steps[p] = blind_steps[p] + 1
+                else:
+                    for c in range(3):
+                        last_seen_m[p, c] = points[p + 1, c]
+                    blind_steps[p] = 0.0
+        for p in range(k):
+            for c in range(3):
+                points[p + 1, c] = last_seen_m[p, c]
+            blind[p] = blind_steps[p] * prm[P_DT]
+    # --- SensorModel.delay: the readings of ``delay`` calls ago
+    delay = state[S_DELAY]
+    count = state[S_COUNT]
+    state[S_COUNT] = count + 1
+    if delay > 0:
+        slot = count % (delay + 1)
+        hist_joints[slot] = joints
+        hist_points[slot] = points
+        hist_blind[slot] = blind
+        out = (count - delay) % (delay + 1) if count >= delay else 0
+        joints = hist_joints[out].copy()
+        points = hist_points[out].copy()
+        blind = hist_blind[out].copy()
+    # --- the task's goal rule (``pick.cube_estimate``: an unseen object in holding fingers
+    # moves with the tool)
+    obj = points[1]
+    if blind[0] > 0.0 and n_j < n_r and targets_rad.shape[0] > n_j:
+        closed = prm[P_GRIP_CLOSED]
+        span = prm[P_GRIP_OPEN] - closed
+        commanded_closed = (targets_rad[n_j] - closed) / span < 0.25
+        reading_open = (joints[n_j] - closed) * np.sign(span) > prm[P_HOLD_MARGIN]
+        if commanded_closed and reading_open:
+            obj = points[0]
+    if prm[P_GOAL_RULE] == 0:
+        achieved, desired = points[0], obj
+    else:
+        achieved, desired = obj, aux[0]
+    # --- command_readings: where the last command puts the tool (the spec's FK)
+    yaw = prm[P_SIGN0] * targets_rad[0]
+    a1 = prm[P_SIGN1] * targets_rad[1]
+    a12 = a1 + prm[P_SIGN2] * targets_rad[2]
+    rr = prm[P_UPPER] * math.sin(a1) + prm[P_FORE] * math.cos(a12) + prm[P_TOOL_FWD]
+    zz = prm[P_BASE_H] + prm[P_UPPER] * math.cos(a1) - prm[P_FORE] * math.sin(a12)
+    zz -= prm[P_TOOL_DOWN]
+    fk0, fk1, fk2 = rr * math.cos(yaw), rr * math.sin(yaw), zz
+    # --- ObservationBuilder.build
+    ee = points[0]
+    for f in range(layout.shape[0]):
+        code, start, size = layout[f, 0], layout[f, 1], layout[f, 2]
+        if code == 0:
+            for i in range(size):
+                obs[start + i] = np.float32(joints[i])
+        elif code == 1:
+            _put(obs, start, ee[0], ee[1], ee[2])
+        elif code == 2:
+            _put(obs, start, desired[0], desired[1], desired[2])
+        elif code == 3:
+            _put(
+                obs,
+                start,
+                desired[0] - achieved[0],
+                desired[1] - achieved[1],
+                desired[2] - achieved[2],
+            )
+        elif code == 4:
+            for i in range(size):
+                obs[start + i] = np.float32(targets_rad[i])
+        elif code == 5:
+            _put(obs, start, fk0, fk1, fk2)
+        elif code == 6:
+            _put(obs, start, desired[0] - fk0, desired[1] - fk1, desired[2] - fk2)
+        elif code == 7:
+            for i in range(size):
+                obs[start + i] = np.float32(prev_action[i])
+        elif code == 8:
+            _put(obs, start, obj[0], obj[1], obj[2])
+        elif code == 9:
+            _put(obs, start, obj[0] - ee[0], obj[1] - ee[1], obj[2] - ee[2])
+        elif code == 10:
+            obs[start] = np.float32(_clip(blind[0], 0.0, prm[P_BLIND_CAP]))
+        else:
+            _put(obs, start, aux[1, 0], aux[1, 1], aux[1, 2])
+    for c in range(3):
+        goals_out[0, c] = achieved[c]
+        goals_out[1, c] = desired[c]
+    x0 = true_achieved_m[0] - true_desired_m[0]
+    x1 = true_achieved_m[1] - true_desired_m[1]
+    x2 = true_achieved_m[2] - true_desired_m[2]
+    return math.sqrt(_dot3(x0, x1, x2, x0, x1, x2))
+
+
+@_jit
+def grasp_shaping(
+    tool_m: np.ndarray,
+    object_m: np.ndarray,
+    contact_geoms: np.ndarray,
+    object_geom: int,
+    finger_geoms: np.ndarray,
+    rest_z_m: float,
+    weights: np.ndarray,
+) -> float:
+    """Pick's staged shaping (``PickTask.shaping``): approach, both fingers on the object, lift.
+    ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs; ``weights``: [reach per m, grasp bonus,
+    lift per m, lift cap m]."""
+    v0, v1, v2 = tool_m[0] - object_m[0], tool_m[1] - object_m[1], tool_m[2] - object_m[2]
+    reach = -weights[0] * math.sqrt(_dot3(v0, v1, v2, v0, v1, v2))
+    for f in range(finger_geoms.shape[0]):
+        touching = False
+        for c in range(contact_geoms.shape[0]):
+            g1, g2 = contact_geoms[c, 0], contact_geoms[c, 1]
+            if (g1 == object_geom and g2 == finger_geoms[f]) or (
+                g2 == object_geom and g1 == finger_geoms[f]
+            ):
+                touching = True
+                break
+        if not touching:
+            return reach
+    lift = _clip(object_m[2] - rest_z_m, 0.0, weights[3])
+    return reach + weights[1] + weights[2] * lift

@@ -1,0 +1,248 @@
+"""The compiled step kernels (``sim2real.envs.fused``) equal their numpy references, to the bit,
+on random inputs: the decoder, the servo, the sensor models with the goal rules and the layout,
+and pick's shaping. ``test_step_pin`` holds whole rollouts; this holds each piece, beyond the
+values a seeded rollout happens to reach (limits, NaN, every DR setting)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+import sim2real.envs as envs
+from hardware.spec import load_spec
+from sim2real.actuation import ServoActuation
+from sim2real.envs import fused
+from sim2real.envs.pick import BLIND_CAP_S, HOLD_MARGIN_RAD, PickTask, cube_estimate, cube_readings
+from sim2real.envs.pick import holding as pick_holding
+from sim2real.envs.reach import ReachTask
+from sim2real.envs.trace import TraceTask
+from sim2real.model import RigSpec, finger_m_to_gripper_rad, gripper_rad_to_finger_m
+from sim2real.observation import ActionDecoder, ObservationBuilder, command_readings
+from sim2real.randomization.sensing import SensorModel
+
+SPEC = load_spec()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("use_gripper", [False, True])
+def test_decode_is_the_action_decoder(dtype: type, use_gripper: bool) -> None:
+    dec = ActionDecoder(SPEC, 0.1, use_gripper=use_gripper)
+    rng = np.random.default_rng(0)
+    md = dtype(dec.max_delta_rad) if dtype is np.float32 else dec.max_delta_rad
+    g = SPEC.gripper
+    assert g is not None
+    grip = np.array([float(use_gripper), g.closed_rad, g.open_rad])
+    for _ in range(2000):
+        action = rng.uniform(-1.5, 1.5, dec.n_actions).astype(dtype)
+        action[rng.random(dec.n_actions) < 0.05] = np.nan
+        prev = rng.uniform(-3.0, 3.0, SPEC.n_actuators)
+        a = np.empty_like(action)
+        out = np.empty_like(prev)
+        fused.decode(action, a, prev, out, SPEC.lower_rad, SPEC.upper_rad, md, grip)
+        ref_a = np.minimum(np.maximum(action, -1.0), 1.0)
+        np.testing.assert_array_equal(a, ref_a)
+        assert a.dtype == ref_a.dtype
+        np.testing.assert_array_equal(out, dec.decode(action, prev))
+
+
+def test_actuate_is_the_servo_model() -> None:
+    """Latency 0-2, noise, dead band, quantisation: the kernel on one ``ServoActuation``'s state
+    writes what the numpy model returns on a twin, the gripper's finger command included."""
+    rng = np.random.default_rng(1)
+    g = SPEC.gripper
+    assert g is not None
+    grip = np.array([1.0, g.closed_rad, g.open_rad, g.max_gap_m])
+    for case in range(24):
+        params = {
+            "latency_steps": case % 3,
+            "action_noise_rad": 0.0 if case % 4 == 0 else rng.uniform(0, 0.01),
+            "max_speed_scale": rng.uniform(0.4, 1.0),
+            "deadband_rad": 0.0 if case % 5 == 0 else rng.uniform(0, 0.02),
+            "quantisation_rad": 0.0 if case % 6 == 0 else rng.choice([0.0016, 0.0032]),
+        }
+        ref, fast = (ServoActuation(SPEC, 0.05, 3) for _ in range(2))
+        for s in (ref, fast):
+            s.configure(params)
+            s.reset(np.array([0.1, -0.2, 0.3]))
+        r_ref, r_fast = np.random.default_rng(case), np.random.default_rng(case)
+        servo = fast.servo
+        prm = np.array(
+            [servo.max_step_rad, servo.deadband_rad, servo.quantum_rad, servo.per_quantum]
+        )
+        ctrl = np.zeros(4)
+        for _ in range(150):
+            sent = rng.uniform(-1.0, 1.0, 4) * rng.choice([0.001, 0.05, 1.0])
+            want = ref(sent[:3], r_ref).copy()
+            noise = fast.noise.take(r_fast) if fast.noise_rad > 0 else np.zeros(3)
+            fused.actuate(
+                sent, noise, fast.noise_rad, prm, servo.applied_rad, servo.queue_rad,
+                servo.head, ctrl, grip,
+            )  # fmt: skip
+            np.testing.assert_array_equal(ctrl[:3], want, err_msg=str(params))
+            assert ctrl[3] == gripper_rad_to_finger_m(SPEC, float(sent[3]))
+
+
+def _sensor_pair(rng: np.random.Generator, n_r: int) -> tuple[SensorModel, SensorModel]:
+    cam = RigSpec().cameras[0]
+    T = cam.base_T_cam()
+    params: dict[str, Any] = {
+        "joint_noise_rad": rng.choice([0.0, rng.uniform(0, 0.004)]),
+        "joint_bias_rad": rng.uniform(-0.01, 0.01, 3),
+        "stereo_pixel_noise_px": rng.choice([0.0, rng.uniform(0.1, 0.6)]),
+        "position_bias_m": rng.uniform(-0.003, 0.003, 3),
+        "obs_delay_steps": int(rng.integers(0, 3)),
+        "point_dropout_prob": rng.uniform(0.0, 0.3),
+        "occlusion_radius_m": rng.uniform(0.03, 0.1),
+        "occlusion_prob": rng.uniform(0.3, 1.0),
+    }
+    res = SPEC.servo.resolution_rad if rng.random() < 0.8 else 0.0
+    pair = tuple(SensorModel(n_r, res, T[:3, :3], T[:3, 3], cam.focal_px, 0.1) for _ in range(2))
+    for s in pair:
+        s.configure(params)
+        s.reset()
+    return pair[0], pair[1]
+
+
+CASES = [  # task, obs mode "goal"?
+    (ReachTask, False),
+    (ReachTask, True),
+    (PickTask, False),
+    (TraceTask, False),
+]
+
+
+@pytest.mark.parametrize(("task_cls", "goal_mode"), CASES)
+def test_observe_is_the_sensor_models_goal_rule_and_builder(
+    task_cls: type, goal_mode: bool
+) -> None:
+    """``SensorModel.read`` → ``occlude`` → ``delay``, the task's goal (pick: the grasp-aware
+    ``cube_estimate``), ``command_readings`` and ``ObservationBuilder.build``, against one call."""
+    task = task_cls()
+    n_j = SPEC.n_joints
+    n_r = n_j + (1 if task.uses_gripper else 0)
+    n_act = n_r
+    builder = ObservationBuilder(task.obs_fields(n_r, n_act, goal_mode))
+    layout = np.array(
+        [(fused.FIELDS[f.name], f.start, f.stop - f.start) for f in builder.layout()],
+        dtype=np.int64,
+    )
+    g = SPEC.gripper
+    assert g is not None
+    rng = np.random.default_rng([len(task.name), goal_mode])
+    dt = 0.05
+    for _episode in range(12):
+        ref, fast = _sensor_pair(rng, n_r)
+        r_ref, r_fast = np.random.default_rng(3), np.random.default_rng(3)
+        prm = np.zeros(fused.N_PRM)
+        prm[fused.P_JOINT_NOISE] = fast.joint_noise
+        prm[fused.P_RESOLUTION], prm[fused.P_INV_RESOLUTION] = (
+            fast.resolution_rad,
+            fast.inv_resolution,
+        )
+        prm[fused.P_PX_NOISE] = fast.px_noise
+        prm[fused.P_OCC_RADIUS] = fast.occlusion_radius_m
+        prm[fused.P_OCC_PROB], prm[fused.P_DROPOUT] = fast.occlusion_prob, fast.dropout_prob
+        prm[fused.P_DT] = dt
+        prm[fused.P_GRIP_CLOSED : fused.P_GRIP_READ + 1] = (
+            g.closed_rad, g.open_rad, g.max_gap_m, float(task.uses_gripper),
+        )  # fmt: skip
+        prm[fused.P_HOLD_MARGIN], prm[fused.P_BLIND_CAP] = HOLD_MARGIN_RAD, BLIND_CAP_S
+        prm[fused.P_SIGN0 : fused.P_SIGN2 + 1] = [j.sign for j in SPEC.joints[:3]]
+        L = SPEC.links
+        prm[fused.P_UPPER : fused.P_TOOL_DOWN + 1] = (
+            L.upper_arm_m, L.forearm_m, L.tool_forward_m, L.base_height_m, L.tool_down_m,
+        )  # fmt: skip
+        prm[fused.P_GOAL_RULE] = fused.GOAL_RULES[task.goal_rule]
+        prm[fused.P_OCCLUDABLE] = task.occludable
+        delay = fast.delay_steps
+        state = np.array([delay, 0, 0], dtype=np.int64)
+        hist = (np.zeros((delay + 1, n_r)), np.zeros((delay + 1, 2, 3)), np.zeros((delay + 1, 1)))
+        last_seen, blind_steps = np.zeros((1, 3)), np.zeros(1)
+        qadr = np.arange(n_r, dtype=np.int64)
+        aux = rng.uniform(-0.2, 0.2, (2, 3))
+        goals = np.zeros((2, 3))
+        for _ in range(40):
+            qpos = rng.uniform(-1.5, 1.5, n_r + 2)
+            if task.uses_gripper:
+                qpos[n_j] = rng.uniform(-0.002, g.max_gap_m / 2 + 0.002)
+            tool = rng.uniform(-0.2, 0.3, 3)
+            # near the tool half the time, so occlusion hides it
+            point = tool + rng.normal(0, 0.03, 3) if rng.random() < 0.5 else rng.uniform(0, 0.3, 3)
+            targets = rng.uniform(-1.5, 1.5, n_r)
+            if task.uses_gripper:
+                targets[n_j] = rng.choice([g.closed_rad, g.open_rad])
+            prev_action = rng.uniform(-1, 1, n_act).astype(rng.choice([np.float32, np.float64]))
+            true_a, true_d = rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.3, 0.3, 3)
+
+            # the reference: the numpy models as the env composed them
+            q = qpos[:n_r].copy()
+            if task.uses_gripper:
+                q[n_j] = finger_m_to_gripper_rad(SPEC, float(qpos[n_j]))
+            joints, est = ref.read(q, np.stack([tool, point]), r_ref)
+            blind = np.zeros(1)
+            if task.occludable:
+                held, blind_n = ref.occlude(est[1:], tool, point[None], r_ref)
+                est, blind = np.concatenate([est[:1], held]), blind_n * dt
+            if ref.delay_steps:
+                joints, est, blind = ref.delay(joints, est, blind)
+            ee, obj = est[0], est[1]
+            if blind[0] > 0:
+                obj = cube_estimate(obj, ee, blind[0], pick_holding(SPEC, targets, joints))
+            achieved, desired = (ee, obj) if task.goal_rule == "tool_to_point" else (obj, aux[0])
+            readings = {
+                "joint_pos": joints,
+                "joint_target": targets[:n_r],
+                "ee_pos": ee,
+                "goal_pos": desired,
+                "goal_delta": desired - achieved,
+                "prev_action": prev_action,
+                "goal_vel": aux[1],
+                **cube_readings(ee, obj, float(blind[0])),
+                **command_readings(SPEC, targets, desired),
+            }
+            want = builder.build(readings)
+            diff = true_a - true_d
+
+            noise = fast.draw(2, r_fast)
+            uniforms = (
+                r_fast.random((2, 1))
+                if task.occludable and state[fused.S_SEEN]
+                else np.zeros((2, 1))
+            )
+            obs = np.empty(builder.size, dtype=np.float32)
+            d = fused.observe(
+                qpos, qadr, tool, point[None], prm, fast.joint_bias, fast.pos_bias,
+                fast.sigma_coef, fast.cam_p_m, fast.cam_z, fast.base_R_cam, noise, uniforms,
+                last_seen, blind_steps, state, *hist, targets, prev_action, aux, layout, true_a,
+                true_d, obs, goals,
+            )  # fmt: skip
+            np.testing.assert_array_equal(obs, want)
+            np.testing.assert_array_equal(goals, np.stack([achieved, desired]))
+            assert d == np.sqrt(diff @ diff)
+
+
+def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
+    """The compiled shaping against ``is_grasped`` and ``lift_m`` on real contacts: a held start
+    (both fingers on the cube) and random steps that let go and touch again."""
+    env = envs.make("Sim2Real/Arm3Pick-v0")
+    u: Any = env.unwrapped
+    rng = np.random.default_rng(5)
+    grasped = 0
+    try:
+        for episode in range(4):
+            env.reset(seed=episode, options={"start": "held"})
+            for _ in range(30):
+                a = rng.uniform(-1, 1, 4).astype(np.float32)
+                a[3] = -1.0 if rng.random() < 0.8 else a[3]
+                env.step(a)
+                v = u.ee_position() - u.task.cube_position(u)
+                want = -2.0 * float(np.linalg.norm(v))
+                if u.task.is_grasped(u):
+                    grasped += 1
+                    want = want + 0.5 + 10.0 * u.task.lift_m(u)
+                assert u.task.shaping(u) == want
+    finally:
+        env.close()
+    assert grasped > 10  # the grasp branch was exercised
