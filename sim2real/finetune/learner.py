@@ -358,6 +358,9 @@ class LearnerHandle:
         self._seen = 0
         self.info: dict[str, Any] = {}
         self.process.start()
+        # the queue's feeder thread starts on the first put: here, at normal priority, not
+        # inside the loop's real-time block (threads started there inherit SCHED_FIFO)
+        self.inbox.put(("hello",))
 
     @property
     def pid(self) -> int | None:

@@ -205,7 +205,6 @@ class _Run:
             # before anything real-time or any port: the learner must not inherit either
             learner = LearnerHandle(self.learner_config())
             stack.callback(learner.close)
-            self.learner_pid = learner.pid
             info = learner.wait_ready()
             normalizer = ObsNormalizer.from_stats(self.src.obs_stats)
             actor = NumpyActor(info["kind"], info["shapes"], learner.initial_weights(),
@@ -229,8 +228,7 @@ class _Run:
                     {"reason": self.stop_reason, "episode": self.state["episodes"],
                      "env_steps": self.state["env_steps"]}
                 )  # fmt: skip
-                _count = "watchdog" in str(exc)
-                self.watchdog_trips += int(_count)
+                self.watchdog_trips += int("watchdog" in str(exc))
                 env.close()  # the arm first: parked (or held, torque off, after an e-stop)
                 self._interventions(human)
                 if not isinstance(exc, _learner_errors()):

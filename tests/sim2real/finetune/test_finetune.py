@@ -159,3 +159,39 @@ def test_sigterm_mid_finetune_exits_143_checkpoints_and_resumes(tmp_path: Path) 
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     summary = json.loads(resumed.stdout.strip().splitlines()[-1])
     assert summary["episodes"] == state["episodes"] + 1 and summary["env_steps"] > steps
+
+
+@pytest.mark.slow
+def test_estop_key_through_a_pty_stops_the_arm_keeps_a_checkpoint(tmp_path: Path) -> None:
+    out = tmp_path / "ft"
+    cmd = [
+        sys.executable, "-m", "sim2real", "finetune", "reach-ddpg", "--out", str(out),
+        "--learning-starts", "20", "--watchdog-s", str(MOCK["watchdog_s"]),
+        "--start-timeout", "60", "--json", "--keys", "--minutes", "10",
+    ]  # fmt: skip
+    master, slave = os.openpty()
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=_default_signals,
+    )  # fmt: skip
+    os.close(slave)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if json.loads(line)["event"] == "episode":
+                time.sleep(1.0)
+                os.write(master, b"e")
+                break
+        stdout, err = proc.communicate(timeout=HANG_S)
+        assert proc.returncode == 1, err[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert "e-stop key" in summary["stopped"]
+    state = json.loads((out / "finetune.json").read_text())
+    assert [i["action"] for i in state["interventions"]] == ["estop"]
+    assert (out / "checkpoints" / state["checkpoint"]).is_file()
+    assert state["episodes"] >= 1
