@@ -22,7 +22,9 @@ import dataclasses
 import os
 import platform
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from support.load import busy_core, emit
@@ -36,6 +38,34 @@ def wilson(k: int, n: int) -> list[float]:
 
     lo, hi = wilson_interval(k, n)
     return [round(lo, 4), round(hi, 4)]
+
+
+def breakdown(log_path: Path, nominal_s: float, over_ms: float = 5.0) -> dict[str, object]:
+    """What made the long periods long. Period k (start k-1 to start k) is period k-1's work
+    (read, perceive, infer, command, bookkeeping) when that passed the deadline, else the sleep
+    plus period k's wake-up lateness. For the periods ``over_ms`` off: how many were each kind,
+    and each section's mean and max in them."""
+    import numpy as np
+
+    log = np.load(log_path)
+    period = log["period_s"][:, 0]
+    late = log["wake_late_s"][:, 0]
+    sections = ("read", "perceive", "infer", "command")
+    work = {s: log[f"{s}_s"][:, 0] for s in sections}
+    idx = [k for k in range(1, len(period)) if abs(period[k] - nominal_s) * 1e3 > over_ms]
+    out: dict[str, object] = {"periods": int(np.isfinite(period).sum()), "long": len(idx)}
+    if not idx:
+        return out
+    prev = np.array(idx) - 1
+    total = sum(work[s][prev] for s in sections)
+    out["overran"] = int((total > nominal_s).sum())  # the work itself passed the deadline
+    out["woke_late"] = int((np.nan_to_num(late[idx]) * 1e3 > over_ms).sum())
+    ms = {s: work[s][prev] * 1e3 for s in sections}
+    ms["work"] = total * 1e3
+    ms["wake_late"] = np.nan_to_num(late[idx]) * 1e3
+    out["ms"] = {k: {"mean": round(float(v.mean()), 2), "max": round(float(v.max()), 2)}
+                 for k, v in ms.items()}  # fmt: skip
+    return out
 
 
 def main() -> None:
@@ -138,9 +168,11 @@ def main() -> None:
             before = sys.getswitchinterval()
             if args.switch_interval is not None:
                 sys.setswitchinterval(args.switch_interval)
+            log_path = Path(tempfile.mkdtemp(prefix="deploy_timing_")) / "loop.npz"
             try:
                 with busy_core():
-                    res = deploy(ref, spec, timing_opts, LoopConfig(episodes=args.timing_episodes))
+                    res = deploy(ref, spec, timing_opts, LoopConfig(episodes=args.timing_episodes),
+                                 log_path=log_path)  # fmt: skip
             except Exception as exc:  # a stop is a result too (a watchdog trip, a lost reply)
                 emit("timing_busy_core_failed", str(exc).splitlines()[0], "", policy=ref,
                      variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
@@ -160,6 +192,13 @@ def main() -> None:
             emit("timing_busy_core_sections_ms",
                  {k: {q: round(v, 3) for q, v in d.items()} for k, d in s["sections_ms"].items()},
                  "ms", policy=ref, success_rate=s["success_rate"], variant=variant)  # fmt: skip
+            emit("timing_busy_core_wake_late_ms",
+                 {q: round(v, 3) for q, v in s["wake_late_ms"].items()}, "ms", policy=ref,
+                 variant=variant)  # fmt: skip
+            emit("timing_busy_core_long_periods", breakdown(log_path, 1.0 / res.rate_hz), "",
+                 policy=ref, variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
+            log_path.unlink(missing_ok=True)
+            log_path.parent.rmdir()
 
 
 if __name__ == "__main__":

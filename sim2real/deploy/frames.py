@@ -61,7 +61,12 @@ def wait_first(source: FrameSource, timeout_s: float) -> FramePair:
 
 def check_fresh(source: FrameSource, pair: FramePair, now_s: float) -> None:
     """Raise if the newest pair is older than the source's timeout: the camera stopped."""
-    age = now_s - pair.capture_s
+    check_fresh_s(source, pair.capture_s, now_s)
+
+
+def check_fresh_s(source: FrameSource, capture_s: float, now_s: float) -> None:
+    """``check_fresh`` on the newest pair's capture time alone (no frame copied for it)."""
+    age = now_s - capture_s
     if age > source.timeout_s:
         raise HardwareError(
             f"cameras stopped delivering frames: the newest pair is {age:.2f} s old "

@@ -82,6 +82,7 @@ LOG_KEYS = (
     "goal_est_m",
     "true_tool_m",
     "period_s",
+    "wake_late_s",
     *(f"{s}_s" for s in SECTIONS),
 )
 
@@ -142,6 +143,9 @@ class DeployResult:
     watchdog_trips: int
     rate_hz: float
     requested_episodes: int
+    # per period after a sleep: the wake-up after the deadline (the kernel's wake-up plus the
+    # wait for the GIL), the part of the jitter the period's own work does not explain
+    wake_late_s: list[float] = field(default_factory=list)
 
     @property
     def successes(self) -> int:
@@ -175,6 +179,11 @@ class DeployResult:
                 "p50": _percentile_ms(list(jitter), 50),
                 "p99": _percentile_ms(list(jitter), 99),
                 "max": float(jitter.max() * 1e3) if len(jitter) else math.nan,
+            },
+            "wake_late_ms": {
+                "p50": _percentile_ms(self.wake_late_s, 50),
+                "p99": _percentile_ms(self.wake_late_s, 99),
+                "max": float(max(self.wake_late_s) * 1e3) if self.wake_late_s else math.nan,
             },
             "overruns": self.overruns,
             "blind_periods": self.blind_periods,
@@ -257,6 +266,7 @@ class DeployLoop:
         period = 1.0 / cfg.rate_hz
         sections: dict[str, list[float]] = {s: [] for s in SECTIONS}
         periods: list[float] = []
+        wake_late: list[float] = []
         episodes: list[EpisodeRecord] = []
         overruns = blind = 0
         stopped: str | None = None
@@ -276,8 +286,12 @@ class DeployLoop:
                 sent: np.ndarray | None = None  # the last command, judged one period later
                 next_t = time.perf_counter()
                 last_start = next_t
+                slept = False  # the last period ended in a sleep to next_t
                 for step in range(self.steps):
                     start = time.perf_counter()
+                    late = start - next_t if slept else math.nan
+                    if slept:
+                        wake_late.append(late)
                     if step > 0:
                         periods.append(start - last_start)
                         if start - last_start > period * (1 + cfg.overrun_warn_fraction):
@@ -330,12 +344,13 @@ class DeployLoop:
                         sections[name].append(dt)
                     self._log_period(
                         episode, step, t0, obs, action, targets, sent, state.positions_rad,
-                        percept, view, periods[-1] if step > 0 else math.nan, sections,
+                        percept, view, periods[-1] if step > 0 else math.nan, sections, late,
                     )  # fmt: skip
                     if self.on_frame is not None:
                         self.on_frame()
                     next_t += period
-                    if next_t - time.perf_counter() > 0:
+                    slept = next_t - time.perf_counter() > 0
+                    if slept:
                         _sleep_until(next_t)
                     else:
                         next_t = time.perf_counter()  # do not try to catch up: it bursts
@@ -397,6 +412,7 @@ class DeployLoop:
             watchdog_trips=self._watchdog_trips,
             rate_hz=cfg.rate_hz,
             requested_episodes=cfg.episodes,
+            wake_late_s=wake_late,
         )
 
     # ---- episode start ----------------------------------------------------------------------
@@ -541,6 +557,7 @@ class DeployLoop:
         view: View | None,
         period_s: float,
         sections: Mapping[str, list[float]],
+        wake_late_s: float = math.nan,
     ) -> None:
         flat = obs["observation"] if isinstance(obs, dict) else obs
         ee_seen = getattr(self.perception, "_ee_seen", None)
@@ -567,6 +584,7 @@ class DeployLoop:
             goal_est_m=percept.position(first),
             true_tool_m=view.tool_m if view is not None and view.truth else None,
             period_s=period_s,
+            wake_late_s=wake_late_s,
             **{f"{n}_s": sections[n][-1] for n in SECTIONS},
             **extra,
         )

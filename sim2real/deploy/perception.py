@@ -42,7 +42,7 @@ from hardware.arm import ArmState
 from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
 from sim2real import scene_names as names
-from sim2real.deploy.frames import FramePair, FrameSource, check_fresh
+from sim2real.deploy.frames import FramePair, FrameSource, check_fresh_s
 from sim2real.envs.contract import ObjectEstimate, Percept
 from sim2real.errors import ConfigError
 
@@ -225,25 +225,182 @@ class Perception(Protocol):
 
 
 @dataclass(frozen=True)
-class _Snapshot:
-    """What the perception thread published after its last pair (replaced whole, never
+class PairResult:
+    """What one frame pair gave: the wrist plate's measurement and every object's track."""
+
+    capture_s: float
+    plate_m: np.ndarray | None  # the wrist plate, where this pair measured it
+    tracks: dict[str, Track]
+
+
+class PairTracker:
+    """The wrist plate and the task's objects, measured and filtered pair by pair: the work of
+    the perception worker, the same code in a thread and in the perception process."""
+
+    def __init__(
+        self,
+        rig: StereoRig,
+        base_T_left: np.ndarray,
+        layout: MarkerLayout,
+        objects: tuple[str, ...],
+        ee_tracker: TrackerConfig,
+    ) -> None:
+        self.ee = StereoMarkerTracker(
+            rig, base_T_left, layout.ee_id, layout.dictionary, layout.ee_size_m, ee_tracker
+        )
+        self.trackers: list[ObjectTracker] = []
+        made: set[TrackerFactory] = set()
+        for name in objects:
+            factory = OBJECTS[name]
+            if factory not in made:
+                made.add(factory)
+                self.trackers.append(factory(rig, base_T_left, layout))
+        # every name a tracker may report (a seam tracker reports both ends)
+        self.names = tuple(n for t in self.trackers for n in t.names)
+
+    def observe(self, pair: FramePair) -> PairResult:
+        self.ee.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
+        meas = self.ee.last_measurement
+        tracks: dict[str, Track] = {}
+        for tracker in self.trackers:
+            tracks.update(tracker.observe(pair))
+        plate = None if meas is None else np.asarray(meas.position_m, dtype=float).copy()
+        return PairResult(pair.capture_s, plate, tracks)
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What the perception worker published after its last pair (replaced whole, never
     mutated: the control loop reads it without a lock)."""
 
     epoch: int
     seq: int
     capture_s: float
     tracks: dict[str, Track]
-    fk_bias_m: np.ndarray
     ee_seen: bool
+    pairs: int  # pairs measured since the worker started
+
+
+# (epoch, capture time, the wrist plate's position): each measurement of the plate, in order
+PlateMeasurement = tuple[int, float, np.ndarray]
+_EMPTY = Snapshot(-1, -1, -math.inf, {}, False, 0)
+
+
+class PerceptionWorker(Protocol):
+    """Runs a ``PairTracker`` on the newest pairs, off the control loop (a thread or a
+    process); the loop polls what it published and never waits for it."""
+
+    def start(self) -> None: ...
+
+    def reset(self, epoch: int, reset_s: float) -> None:
+        """New tracks from the first pair captured at or after ``reset_s``, tagged ``epoch``."""
+        ...
+
+    def poll(self) -> tuple[Snapshot, list[PlateMeasurement]]:
+        """The newest snapshot and the plate measurements since the last poll; raises
+        ``HardwareError`` (one line) when the worker died."""
+        ...
+
+    def pair(self) -> FramePair | None:
+        """The pair the worker measured last, if it can be had in this process."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class ThreadWorker:
+    """The worker as a thread of the control process, at ``nice`` where Linux allows a thread's
+    own niceness. For frame sources that live in this process (OpenCV capture threads, a test's
+    frames); OpenCV releases the GIL while it detects, but the Python around it does not."""
+
+    def __init__(
+        self, frames: FrameSource, make_tracker: Callable[[], PairTracker], nice: int
+    ) -> None:
+        self.frames, self._make, self._nice = frames, make_tracker, nice
+        self._snapshot = _EMPTY
+        self._plates: deque[PlateMeasurement] = deque()
+        self._epoch, self._reset_s = 0, -math.inf
+        self._error: BaseException | None = None
+        self._running = False
+        self._thread: threading.Thread | None = None
+        self._wake = threading.Event()
+        self._last_pair: FramePair | None = None
+
+    def start(self) -> None:
+        self._running = True
+        self._thread = threading.Thread(target=self._work, name="perception", daemon=True)
+        self._thread.start()
+
+    def _work(self) -> None:
+        with contextlib.suppress(OSError, AttributeError):  # Linux: per-thread nice
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self._nice)
+        epoch, seq, pairs = -1, -1, 0
+        tracker = self._make()
+        try:
+            while self._running:
+                pair = self.frames.latest()
+                if self._epoch != epoch:  # reset() asked for fresh tracks
+                    epoch = self._epoch
+                    tracker, seq = self._make(), -1
+                if pair is None or pair.seq == seq or pair.capture_s < self._reset_s:
+                    # nothing new, or a frame from before the objects were placed anew
+                    self._wake.wait(0.005)
+                    self._wake.clear()
+                    continue
+                seq = pair.seq
+                result = tracker.observe(pair)
+                self._last_pair = pair
+                pairs += 1
+                if epoch == self._epoch:  # not reset meanwhile
+                    if result.plate_m is not None:
+                        self._plates.append((epoch, result.capture_s, result.plate_m))
+                    self._snapshot = Snapshot(
+                        epoch, seq, result.capture_s, result.tracks, result.plate_m is not None,
+                        pairs,
+                    )  # fmt: skip
+        except BaseException as exc:  # surfaced by poll(): perception must not die silently
+            self._error = exc
+
+    def reset(self, epoch: int, reset_s: float) -> None:
+        self._reset_s = reset_s
+        self._epoch = epoch
+        self._wake.set()
+
+    def poll(self) -> tuple[Snapshot, list[PlateMeasurement]]:
+        if self._error is not None:
+            first = (str(self._error).splitlines() or [type(self._error).__name__])[0]
+            raise HardwareError(f"perception stopped: {first}") from self._error
+        if self._thread is None:
+            raise ConfigError("StereoPerception.perceive() before start()")
+        plates = []
+        while self._plates:
+            plates.append(self._plates.popleft())
+        return self._snapshot, plates
+
+    def pair(self) -> FramePair | None:
+        return self._last_pair
+
+    def close(self) -> None:
+        self._running = False
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+
+WORKERS = ("auto", "thread", "process")
 
 
 class StereoPerception:
     """The wrist plate plus the task's objects, tracked on a free-running stereo source.
 
-    Detection, triangulation and filtering run in their own thread (``start``), as capture does:
-    OpenCV releases the GIL, so it uses the other core, and a slow pair never delays a command.
-    The control loop's ``perceive`` only reads the newest snapshot and predicts it to the
-    command time.
+    Detection, triangulation and filtering run off the control loop (``start``), as capture
+    does, so a slow pair never delays a command. Where the frames are in shared memory (the
+    mock's render process) they run in their own process (``perception_process``): a thread
+    of this process would hold its GIL, and a worker preempted by the machine's load while
+    holding it keeps the real-time loop waiting after its wake-up. Elsewhere (OpenCV capture
+    threads) in a thread. The control loop's ``perceive`` only reads the newest snapshot and
+    predicts it to the command time.
 
     The tool estimate is forward kinematics of the fresh joint readings, corrected by what the
     cameras saw: the wrist plate against FK at the frame's capture time. So it carries no camera
@@ -263,6 +420,7 @@ class StereoPerception:
         layout: MarkerLayout | None = None,
         tracker: TrackerConfig | None = None,
         yaw_sign: float = 1.0,
+        worker: str = "auto",
     ) -> None:
         self.frames, self.rig, self.spec = frames, rig, spec
         self.layout = layout or MarkerLayout.for_spec(spec)
@@ -275,23 +433,37 @@ class StereoPerception:
                 f"the policy's task needs {', '.join(missing)}, but the marker layout "
                 f"({self.layout.source}) has no such marker set up"
             )
+        if worker not in WORKERS:
+            raise ConfigError(f"perception worker {worker!r}; valid: {list(WORKERS)}")
+        if worker == "auto":
+            worker = "process" if hasattr(frames, "share") else "thread"
+        if worker == "process" and not hasattr(frames, "share"):
+            raise ConfigError(
+                f"a perception process needs frames in shared memory; {type(frames).__name__} "
+                "has none (use worker='thread')"
+            )
+        self.worker_kind = worker
         self.objects = objects
         self.base_T_left = np.asarray(base_T_left, dtype=float)
         cfg = tracker or TrackerConfig()
         self._ee_cfg = replace(cfg, max_coast_s=min(cfg.max_coast_s, 0.1))
         self._offset = np.asarray(self.layout.ee_marker_p_tool_m, dtype=float)
         self._yaw_sign = spec.joints[0].sign * yaw_sign
-        self.last_pair: FramePair | None = None
         self.detections = {"pairs": 0, "periods": 0, "ee": 0, "fk_fallback": 0, "reused": 0}
         self._q_hist: deque[tuple[float, np.ndarray]] = deque(maxlen=400)  # ~20 s at 20 Hz
         self._epoch = 0
-        self._reset_s = -math.inf
-        self._snapshot = _Snapshot(0, -1, -math.inf, {}, np.zeros(3), False)
-        self._error: BaseException | None = None
-        self._running = False
-        self._thread: threading.Thread | None = None
-        self._wake = threading.Event()
-        self._new_trackers()
+        self._snapshot = _EMPTY
+        self._bias = np.zeros(3)
+        self._bias_n = 0
+        self._worker: PerceptionWorker | None = None
+
+    def new_tracker(self) -> PairTracker:
+        return PairTracker(self.rig, self.base_T_left, self.layout, self.objects, self._ee_cfg)
+
+    @property
+    def last_pair(self) -> FramePair | None:
+        """The pair perception measured last (a process worker's: the newest in the block)."""
+        return None if self._worker is None else self._worker.pair()
 
     @property
     def last_frames(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -301,6 +473,11 @@ class StereoPerception:
     @property
     def _ee_seen(self) -> bool:
         return self._snapshot.ee_seen
+
+    @property
+    def worker_pid(self) -> int | None:
+        """The perception process's pid (None for a thread worker)."""
+        return getattr(self._worker, "pid", None)
 
     def check_frames(self, pair: FramePair) -> None:
         """The calibration must be for the resolution the cameras deliver (before moving)."""
@@ -316,60 +493,24 @@ class StereoPerception:
                     "recalibrate at this resolution or set the camera to it"
                 )
 
-    # ---- the perception thread --------------------------------------------------------------
     def start(self) -> None:
-        self._running = True
-        self._thread = threading.Thread(target=self._work, name="perception", daemon=True)
-        self._thread.start()
+        """Start the worker (a process: start-up, before torque is on, may take seconds)."""
+        if self.worker_kind == "process":
+            from sim2real.deploy.perception_process import PerceptionJob, PerceptionProcess
 
-    def _new_trackers(self) -> None:
-        lay = self.layout
-        self.ee = StereoMarkerTracker(
-            self.rig, self.base_T_left, lay.ee_id, lay.dictionary, lay.ee_size_m, self._ee_cfg
-        )
-        self._trackers: list[ObjectTracker] = []
-        made: set[TrackerFactory] = set()
-        for name in self.objects:
-            factory = OBJECTS[name]
-            if factory not in made:
-                made.add(factory)
-                self._trackers.append(factory(self.rig, self.base_T_left, lay))
-        self._bias_n = 0
-
-    def _work(self) -> None:
-        with contextlib.suppress(OSError, AttributeError):  # Linux: per-thread nice
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.WORKER_NICE)
-        epoch, seq = -1, -1
-        bias = np.zeros(3)
-        try:
-            while self._running:
-                pair = self.frames.latest()
-                if self._epoch != epoch:  # reset() asked for fresh tracks
-                    epoch = self._epoch
-                    self._new_trackers()
-                    bias, seq = np.zeros(3), -1
-                if pair is None or pair.seq == seq or pair.capture_s < self._reset_s:
-                    # nothing new, or a frame from before the objects were placed anew
-                    self._wake.wait(0.005)
-                    self._wake.clear()
-                    continue
-                seq = pair.seq
-                self.ee.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
-                meas = self.ee.last_measurement
-                if meas is not None:
-                    bias = self._correct_fk(bias, meas.position_m, pair.capture_s)
-                tracks: dict[str, Track] = {}
-                for tracker in self._trackers:
-                    tracks.update(tracker.observe(pair))
-                self.last_pair = pair
-                self.detections["pairs"] += 1
-                self.detections["ee"] += int(meas is not None)
-                if epoch == self._epoch:  # not reset meanwhile
-                    self._snapshot = _Snapshot(
-                        epoch, seq, pair.capture_s, tracks, bias.copy(), meas is not None
-                    )
-        except BaseException as exc:  # surfaced by perceive(): perception must not die silently
-            self._error = exc
+            job = PerceptionJob(
+                frames=self.frames.share(),  # type: ignore[attr-defined]
+                rig=self.rig,
+                base_T_left=self.base_T_left,
+                layout=self.layout,
+                objects=self.objects,
+                ee_tracker=self._ee_cfg,
+                nice=self.WORKER_NICE,
+            )
+            self._worker = PerceptionProcess(job)
+        else:
+            self._worker = ThreadWorker(self.frames, self.new_tracker, self.WORKER_NICE)
+        self._worker.start()
 
     def _correct_fk(self, bias: np.ndarray, plate_m: np.ndarray, capture_s: float) -> np.ndarray:
         """The camera measures the tool late but without the spec's geometry errors; the joint
@@ -393,40 +534,51 @@ class StereoPerception:
 
     # ---- the control loop's side ------------------------------------------------------------
     def reset(self) -> None:
-        """New episode: the objects were placed anew. Tracks restart from the next pair."""
-        self._reset_s = time.monotonic()
+        """New episode: the objects were placed anew. Tracks restart from the next pair, and
+        the first plate measurement replaces the FK correction."""
         self._epoch += 1
-        self._snapshot = _Snapshot(self._epoch, -1, -math.inf, {}, self._snapshot.fk_bias_m, False)
-        self._wake.set()
+        self._bias_n = 0
+        if self._worker is not None:
+            self._worker.reset(self._epoch, time.monotonic())
+
+    def _newest_capture_s(self) -> float | None:
+        """The source's newest capture time, without copying a frame where it can."""
+        newest = getattr(self.frames, "newest_capture_s", None)
+        if newest is not None:
+            value = newest()
+            return None if value is None else float(value)
+        pair = self.frames.latest()
+        return None if pair is None else pair.capture_s
 
     def perceive(self, state: ArmState, command_s: float) -> Percept:
-        if self._error is not None:
-            first = (str(self._error).splitlines() or [type(self._error).__name__])[0]
-            raise HardwareError(f"perception stopped: {first}") from self._error
-        if self._thread is None:
+        if self._worker is None:
             raise ConfigError("StereoPerception.perceive() before start()")
+        snap, plates = self._worker.poll()  # raises when the worker died
         q_now = np.asarray(state.positions_rad[: self.spec.n_joints], dtype=float)
         self._q_hist.append((command_s, q_now))
-        pair = self.frames.latest()
-        if pair is None:
+        capture_s = self._newest_capture_s()
+        if capture_s is None:
             raise ConfigError("perceive() before the cameras delivered a frame (start them first)")
-        check_fresh(self.frames, pair, command_s)
+        check_fresh_s(self.frames, capture_s, command_s)
+        for epoch, t_s, plate_m in plates:
+            if epoch == self._epoch:
+                self._bias = self._correct_fk(self._bias, plate_m, t_s)
+                self.detections["ee"] += 1
         self.detections["periods"] += 1
-        snap = self._snapshot
-        if snap.epoch != self._epoch:
-            snap = _Snapshot(self._epoch, -1, -math.inf, {}, snap.fk_bias_m, False)
-        ee = self.spec.forward_kinematics(q_now) + snap.fk_bias_m
+        self.detections["pairs"] = snap.pairs
+        if snap.epoch != self._epoch:  # nothing measured since the reset yet
+            snap = Snapshot(self._epoch, -1, -math.inf, {}, False, snap.pairs)
+        self._snapshot = snap
+        ee = self.spec.forward_kinematics(q_now) + self._bias
         if not snap.ee_seen:
             self.detections["fk_fallback"] += 1
         objects = {name: track.at(command_s) for name, track in snap.tracks.items()}
         return Percept(ee, objects)
 
     def close(self) -> None:
-        self._running = False
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
         # the frame source belongs to whoever opened it (the world, or the backend's stack)
 
 

@@ -9,7 +9,8 @@ waiting. Rendering on CPU (llvmpipe) costs tens of milliseconds a pair; in its o
 lower priority (``nice``), it cannot hold the host's GIL or its core when the loop wakes up.
 
 Both shared blocks use a sequence lock (odd while written) so a reader never takes half a write.
-The child exits when told to, and by itself when its parent dies.
+The child exits when told to, and by itself when its parent dies. The frame block can be opened
+by name in a third process (``SharedFrames``): the perception process reads the pairs there.
 """
 
 from __future__ import annotations
@@ -179,6 +180,115 @@ def _render_main(cfg: RenderConfig, names: tuple[str, str], sizes: tuple[int, in
         shared.release()
 
 
+def _frame_views(buf: Any, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(header, images) views of a frame block's buffer."""
+    header: np.ndarray = np.ndarray((_HEADER,), np.float64, buf)
+    images: np.ndarray = np.ndarray((2, 2, h, w, 3), np.uint8, buf, offset=8 * _HEADER)
+    return header, images
+
+
+def _frame_block_size(h: int, w: int) -> int:
+    return 8 * _HEADER + 2 * 2 * h * w * 3
+
+
+def _newest_capture_s(header: np.ndarray) -> float | None:
+    """The newest pair's capture time from the header alone (no image copied), or None."""
+    if header[_PUBLISHED] == 0:
+        return None
+    return float(header[int(header[_NEWEST]) * _SLOT_FIELDS + 1])
+
+
+def _latest_pair(
+    header: np.ndarray, images: np.ndarray, last: FramePair | None
+) -> FramePair | None:
+    """The newest whole pair (``last`` again when it is still the newest, or while the writer
+    holds every slot)."""
+    if header[_PUBLISHED] == 0:
+        return None
+    for _ in range(20):
+        slot = int(header[_NEWEST])
+        base = slot * _SLOT_FIELDS
+        s1 = header[base]
+        seq = int(header[base + 2])
+        if last is not None and seq == last.seq:
+            return last
+        if s1 % 2 == 1:
+            continue
+        left = images[slot, 0].copy()
+        right = images[slot, 1].copy()
+        capture = float(header[base + 1])
+        if header[base] == s1:
+            return FramePair(left, right, capture, seq)
+    return last
+
+
+@dataclass(frozen=True)
+class SharedFrames:
+    """How another process opens a frame block (picklable): its name and image size."""
+
+    name: str
+    height_px: int
+    width_px: int
+    timeout_s: float
+
+    def open(self) -> FrameBlock:
+        return FrameBlock(self.height_px, self.width_px, self.timeout_s, name=self.name)
+
+
+class FrameBlock:
+    """A stereo frame block in shared memory (two slots, each under its own sequence lock): a
+    ``FrameSource`` for its readers. ``name=None`` creates it (this process owns and unlinks
+    it); a name attaches to another process's block."""
+
+    def __init__(
+        self, height_px: int, width_px: int, timeout_s: float = 1.0, name: str | None = None
+    ) -> None:
+        self.timeout_s = timeout_s
+        self._h, self._w = height_px, width_px
+        self._owner = name is None
+        if name is None:
+            self._shm = shared_memory.SharedMemory(
+                create=True, size=_frame_block_size(height_px, width_px)
+            )
+        else:
+            self._shm = attach_block(name)
+        self.header, self.images = _frame_views(self._shm.buf, height_px, width_px)
+        if self._owner:
+            self.header[:] = 0.0
+        self._last: FramePair | None = None
+        self._closed = False
+
+    @property
+    def name(self) -> str:
+        return str(self._shm.name)
+
+    def share(self) -> SharedFrames:
+        return SharedFrames(self.name, self._h, self._w, self.timeout_s)
+
+    def start(self) -> None:
+        """The writer runs elsewhere."""
+
+    def publish(self, left_bgr: np.ndarray, right_bgr: np.ndarray, capture_s: float) -> None:
+        _publish_views(self.header, self.images, left_bgr, right_bgr, capture_s)
+
+    def latest(self) -> FramePair | None:
+        self._last = _latest_pair(self.header, self.images, self._last)
+        return self._last
+
+    def newest_capture_s(self) -> float | None:
+        return _newest_capture_s(self.header)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        del self.header, self.images  # numpy views must go before the buffer closes
+        self._shm.close()
+        if self._owner:
+            with contextlib.suppress(FileNotFoundError):
+                self._shm.unlink()
+
+
 def _read_locked(block: np.ndarray, _n_header: int) -> np.ndarray | None:
     """A consistent copy of a seqlock-guarded block, or None if it stays busy."""
     for _ in range(100):
@@ -192,12 +302,17 @@ def _read_locked(block: np.ndarray, _n_header: int) -> np.ndarray | None:
 
 
 def _publish(shared: _Shared, left: np.ndarray, right: np.ndarray, capture_s: float) -> None:
-    h = shared.header
+    _publish_views(shared.header, shared.images, left, right, capture_s)
+
+
+def _publish_views(
+    h: np.ndarray, images: np.ndarray, left: np.ndarray, right: np.ndarray, capture_s: float
+) -> None:
     slot = 1 - int(h[_NEWEST]) if h[_PUBLISHED] > 0 else 0
     base = slot * _SLOT_FIELDS
     h[base] += 1  # odd: writing
-    shared.images[slot, 0] = left
-    shared.images[slot, 1] = right
+    images[slot, 0] = left
+    images[slot, 1] = right
     h[base + 1] = capture_s
     h[base + 2] = h[_PUBLISHED] + 1
     h[base] += 1  # even: done
@@ -217,9 +332,7 @@ class RenderedStereoCameras:
         self._state_shm = shared_memory.SharedMemory(
             create=True, size=8 * (_STATE_HEADER + self._n_state)
         )
-        self._frames_shm = shared_memory.SharedMemory(
-            create=True, size=8 * _HEADER + 2 * 2 * h * w * 3
-        )
+        self._frames_shm = shared_memory.SharedMemory(create=True, size=_frame_block_size(h, w))
         self._shared = _Shared(self._state_shm, self._frames_shm, self._n_state, h, w)
         self._shared.state[:] = 0.0
         self._shared.state[1] = -1.0  # no state yet
@@ -260,29 +373,29 @@ class RenderedStereoCameras:
         """The state block's name, for a ``SceneStatePublisher`` in another process."""
         return str(self._state_shm.name)
 
-    def latest(self) -> FramePair | None:
+    def _check_alive(self) -> None:
         if self._proc is not None and self._proc.poll() is not None:
             raise HardwareError(f"the virtual camera process died (exit {self._proc.returncode})")
-        h = self._shared.header
-        if h[_PUBLISHED] == 0:
-            return None
-        for _ in range(20):
-            slot = int(h[_NEWEST])
-            base = slot * _SLOT_FIELDS
-            s1 = h[base]
-            seq = int(h[base + 2])
-            if self._last is not None and seq == self._last.seq:
-                return self._last
-            if s1 % 2 == 1:
-                continue
-            left = self._shared.images[slot, 0].copy()
-            right = self._shared.images[slot, 1].copy()
-            capture = float(h[base + 1])
-            if h[base] == s1:
-                self._last = FramePair(left, right, capture, seq)
-                self.pairs_read += 1
-                return self._last
-        return self._last
+
+    def latest(self) -> FramePair | None:
+        self._check_alive()
+        pair = _latest_pair(self._shared.header, self._shared.images, self._last)
+        if pair is not None and pair is not self._last:
+            self.pairs_read += 1
+        self._last = pair
+        return pair
+
+    def newest_capture_s(self) -> float | None:
+        """The newest pair's capture time without copying its images (the control loop's
+        freshness check, while perception reads the pairs in its own process)."""
+        self._check_alive()
+        return _newest_capture_s(self._shared.header)
+
+    def share(self) -> SharedFrames:
+        """The frame block, for a reader in another process (perception)."""
+        return SharedFrames(
+            str(self._frames_shm.name), self.cfg.height_px, self.cfg.width_px, self.timeout_s
+        )
 
     def freeze(self) -> None:
         """Fault injection: the cameras stop delivering (the process lives on, as a hung USB

@@ -1,0 +1,335 @@
+"""Perception in its own process: detection, triangulation and the Kalman filters off the
+control process, fed by frames in shared memory (the mock's render process publishes them).
+
+Why a process: as a thread of the control process, perception held the host's GIL for the Python
+around each OpenCV call. At a lower priority than the real-time loop, on a loaded machine, it
+was preempted while holding the GIL, and the loop, awake on time, waited for it (a priority
+inversion no scheduler setting of the loop's can fix). Here it has a GIL of its own.
+
+The child reads the newest pair from the frame block, measures it (``perception.PairTracker``,
+the same code as the thread worker's) and publishes, under a sequence lock (odd while written),
+each object's track and the wrist plate's measurement with the pair's capture time. The control
+loop's ``perceive`` reads that block without waiting. A small control area, written by the
+parent alone, carries the episode (epoch and reset time) and the stop request.
+
+Lifecycle: the child exits when told to, when its parent dies (it checks between pairs: it never
+blocks longer than a poll interval), and on any error, with one line on stderr that the parent
+raises as ``HardwareError``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from multiprocessing import shared_memory
+from typing import Any
+
+import numpy as np
+
+from calibration.kalman import TrackerConfig
+from calibration.triangulate import StereoRig
+from hardware.errors import HardwareError
+from sim2real.deploy.frames import FramePair
+from sim2real.deploy.perception import (
+    MarkerLayout,
+    PairTracker,
+    PlateMeasurement,
+    Snapshot,
+    Track,
+)
+from sim2real.deploy.render_process import SharedFrames, attach_block
+from sim2real.envs.contract import ObjectEstimate
+
+# header (float64): [lock, epoch, seq, capture_s, ee_seen, ready, pairs, plates written]
+_LOCK, _EPOCH, _SEQ, _CAPTURE, _EE_SEEN, _READY, _PAIRS, _PLATES = range(8)
+_HEADER = 8
+_RING = 32  # plate measurements kept for the parent (> 1 s of pairs at 30 fps)
+_RING_FIELDS = 5  # epoch, capture_s, x, y, z
+_OBJ_FIELDS = 9  # present, position xyz, velocity xyz, blind_s, yaw (nan: none)
+# control (written by the parent only, outside the lock): [epoch, reset_s, stop]
+_CTL_EPOCH, _CTL_RESET, _CTL_STOP = range(3)
+_CTL = 3
+POLL_S = 0.003  # the child's wait for a new pair (and its check on its parent)
+
+
+def _layout(n_names: int) -> tuple[int, int, int]:
+    """(ring offset, objects offset, control offset, in float64s) and the block's length."""
+    ring = _HEADER
+    objects = ring + _RING * _RING_FIELDS
+    ctl = objects + n_names * _OBJ_FIELDS
+    return ring, objects, ctl
+
+
+def _block_len(n_names: int) -> int:
+    return _layout(n_names)[2] + _CTL
+
+
+@dataclass(frozen=True)
+class PerceptionJob:
+    """Everything the child needs (pickled to its stdin)."""
+
+    frames: SharedFrames
+    rig: StereoRig
+    base_T_left: np.ndarray  # noqa: N815 - frame names are part of the name
+    layout: MarkerLayout
+    objects: tuple[str, ...]
+    ee_tracker: TrackerConfig
+    nice: int = 5
+    block: str = ""  # the estimate block's name (set by ``PerceptionProcess.start``)
+
+    def tracker(self) -> PairTracker:
+        return PairTracker(self.rig, self.base_T_left, self.layout, self.objects, self.ee_tracker)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = (str(exc).splitlines() or [""])[0]
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _publish(
+    block: np.ndarray, names: tuple[str, ...], epoch: int, seq: int, result: Any, pairs: int
+) -> None:
+    """One pair's result under the block's sequence lock."""
+    ring, objects, _ = _layout(len(names))
+    block[_LOCK] += 1  # odd: writing
+    block[_EPOCH], block[_SEQ], block[_CAPTURE] = epoch, seq, result.capture_s
+    block[_EE_SEEN] = float(result.plate_m is not None)
+    block[_PAIRS] = pairs
+    if result.plate_m is not None:
+        n = int(block[_PLATES])
+        o = ring + (n % _RING) * _RING_FIELDS
+        block[o], block[o + 1] = epoch, result.capture_s
+        block[o + 2 : o + 5] = result.plate_m
+        block[_PLATES] = n + 1
+    for i, name in enumerate(names):
+        o = objects + i * _OBJ_FIELDS
+        track = result.tracks.get(name)
+        block[o] = 0.0 if track is None else 1.0
+        if track is not None:
+            est = track.estimate
+            block[o + 1 : o + 4] = est.position_m
+            block[o + 4 : o + 7] = track.velocity_mps
+            block[o + 7] = est.blind_s
+            block[o + 8] = math.nan if est.yaw_rad is None else est.yaw_rad
+    block[_LOCK] += 1  # even: done
+
+
+def _read_locked(block: np.ndarray, n: int) -> np.ndarray | None:
+    """A consistent copy of the first ``n`` values, or None while the writer holds it."""
+    for _ in range(100):
+        s1 = block[_LOCK]
+        if s1 % 2 == 1:
+            continue
+        copy = block[:n].copy()
+        if block[_LOCK] == s1:
+            return copy
+    return None
+
+
+def _serve(job: PerceptionJob, parent: int) -> None:
+    frames = job.frames.open()
+    shm = attach_block(job.block)
+    tracker = job.tracker()
+    names = tracker.names
+    block: np.ndarray = np.ndarray((_block_len(len(names)),), np.float64, shm.buf)
+    ctl = _layout(len(names))[2]
+    block[_READY] = 1.0
+    epoch, seq, pairs = -1, -1, 0
+    try:
+        while block[ctl + _CTL_STOP] == 0.0 and os.getppid() == parent:
+            want = int(block[ctl + _CTL_EPOCH])
+            if want != epoch:  # a new episode: fresh tracks
+                epoch, tracker, seq = want, job.tracker(), -1
+            pair = frames.latest()
+            if pair is None or pair.seq == seq or pair.capture_s < block[ctl + _CTL_RESET]:
+                time.sleep(POLL_S)  # nothing new, or a frame from before the reset
+                continue
+            seq = pair.seq
+            result = tracker.observe(pair)
+            pairs += 1
+            if int(block[ctl + _CTL_EPOCH]) == epoch:  # not reset meanwhile
+                _publish(block, names, epoch, seq, result, pairs)
+    finally:
+        del block
+        frames.close()
+        with contextlib.suppress(BufferError):
+            shm.close()
+
+
+def main() -> None:
+    """The child's entry point: the job arrives pickled on stdin."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C, then stops us
+    parent = os.getppid()
+    try:
+        job: PerceptionJob = pickle.load(sys.stdin.buffer)
+        with contextlib.suppress(OSError):
+            os.nice(job.nice)
+        _serve(job, parent)
+    except Exception as exc:
+        print(_one_line(exc), file=sys.stderr, flush=True)
+        sys.exit(3)
+
+
+class PerceptionProcess:
+    """The parent's handle: start the child, poll its block, reset, stop (a ``PerceptionWorker``)."""
+
+    START_TIMEOUT_S = 60.0  # importing OpenCV on a loaded machine (start-up, before torque)
+    STOP_TIMEOUT_S = 5.0
+
+    def __init__(self, job: PerceptionJob) -> None:
+        self.job = job
+        self.names = job.tracker().names  # checks the layout here, in one line, not in the child
+        self._n = _block_len(len(self.names))
+        self._ring, self._objects, self._ctl = _layout(len(self.names))
+        self._shm: shared_memory.SharedMemory | None = None
+        self._block: np.ndarray | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._stderr: Any = None
+        self._plates_read = 0
+        self._last: np.ndarray | None = None
+        self._frames: Any = None  # the frame block, opened here only if a pair is asked for
+
+    @property
+    def pid(self) -> int | None:
+        return None if self._proc is None else self._proc.pid
+
+    def start(self) -> None:
+        """Start ``python -m sim2real.deploy.perception_process`` (not multiprocessing: a
+        spawned child would re-import the user's ``__main__``) and wait until it serves."""
+        self._shm = shared_memory.SharedMemory(create=True, size=8 * self._n)
+        self._block = np.ndarray((self._n,), np.float64, self._shm.buf)
+        self._block[:] = 0.0
+        self._block[_EPOCH] = -1.0
+        self._block[self._ctl + _CTL_RESET] = -math.inf
+        self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed by close()
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "sim2real.deploy.perception_process"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,  # nothing of the child's may land in a --json stdout
+            stderr=self._stderr,
+            close_fds=True,
+        )
+        try:
+            assert self._proc.stdin is not None
+            self._proc.stdin.write(pickle.dumps(replace(self.job, block=self._shm.name)))
+            self._proc.stdin.close()
+            deadline = time.monotonic() + self.START_TIMEOUT_S
+            while self._block[_READY] == 0.0:
+                self.check_alive()
+                if time.monotonic() > deadline:
+                    raise HardwareError(
+                        f"the perception process did not start in {self.START_TIMEOUT_S:.0f} s"
+                    )
+                time.sleep(0.01)
+        except BaseException:
+            self.close()
+            raise
+
+    def death(self) -> str | None:
+        """One line saying how the child died, or None while it lives."""
+        if self._proc is None:
+            return None
+        rc = self._proc.poll()
+        if rc is None:
+            return None
+        how = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit {rc}"
+        last = self._last_words() if rc > 0 else ""
+        return f"the perception process died ({how})" + (f": {last}" if last else "")
+
+    def _last_words(self) -> str:
+        if self._stderr is None:
+            return ""
+        with contextlib.suppress(OSError):
+            self._stderr.seek(0, os.SEEK_END)
+            self._stderr.seek(max(0, self._stderr.tell() - 4096))
+            lines = self._stderr.read().decode(errors="replace").strip().splitlines()
+            return lines[-1].strip() if lines else ""
+        return ""
+
+    def check_alive(self) -> None:
+        died = self.death()
+        if died is not None:
+            raise HardwareError(died)
+
+    def reset(self, epoch: int, reset_s: float) -> None:
+        assert self._block is not None
+        self._block[self._ctl + _CTL_RESET] = reset_s  # before the epoch: the child reads
+        self._block[self._ctl + _CTL_EPOCH] = epoch  # the epoch first
+
+    def poll(self) -> tuple[Snapshot, list[PlateMeasurement]]:
+        self.check_alive()
+        if self._block is None:
+            raise HardwareError("the perception process is not running")
+        block = _read_locked(self._block, self._ctl)
+        if block is None:  # the writer was preempted mid-write: the previous state is whole
+            block = self._last
+        if block is None:
+            return Snapshot(-1, -1, -math.inf, {}, False, 0), []
+        self._last = block
+        written = int(block[_PLATES])
+        plates: list[PlateMeasurement] = []
+        for n in range(max(self._plates_read, written - _RING), written):
+            o = self._ring + (n % _RING) * _RING_FIELDS
+            plates.append((int(block[o]), float(block[o + 1]), block[o + 2 : o + 5].copy()))
+        self._plates_read = written
+        tracks: dict[str, Track] = {}
+        capture = float(block[_CAPTURE])
+        for i, name in enumerate(self.names):
+            o = self._objects + i * _OBJ_FIELDS
+            if block[o] > 0.5:
+                yaw = float(block[o + 8])
+                est = ObjectEstimate(
+                    block[o + 1 : o + 4].copy(),
+                    float(block[o + 7]),
+                    None if math.isnan(yaw) else yaw,
+                )
+                tracks[name] = Track(est, block[o + 4 : o + 7].copy(), capture)
+        snap = Snapshot(
+            int(block[_EPOCH]), int(block[_SEQ]), capture, tracks, block[_EE_SEEN] > 0.5,
+            int(block[_PAIRS]),
+        )  # fmt: skip
+        return snap, plates
+
+    def pair(self) -> FramePair | None:
+        """The newest pair in the frame block (video and datasets; not on the loop's path)."""
+        if self._frames is None:
+            self._frames = self.job.frames.open()
+        pair: FramePair | None = self._frames.latest()
+        return pair
+
+    def close(self) -> None:
+        """Ask the child to stop, kill it if it does not; release the block. Idempotent."""
+        proc = self._proc
+        if proc is not None:
+            if self._block is not None:
+                self._block[self._ctl + _CTL_STOP] = 1.0
+            try:
+                proc.wait(timeout=self.STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=self.STOP_TIMEOUT_S)
+            self._proc = None
+        if self._frames is not None:
+            self._frames.close()
+            self._frames = None
+        if self._shm is not None:
+            self._block = None
+            self._shm.close()
+            with contextlib.suppress(FileNotFoundError):
+                self._shm.unlink()
+            self._shm = None
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+
+
+if __name__ == "__main__":
+    main()
