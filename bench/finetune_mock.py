@@ -60,6 +60,41 @@ def _plot(curves: dict[int, list[dict[str, Any]]], target: float | None, path: P
     plt.close(fig)
 
 
+def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, float]:
+    """The same backend and env stepped by the exported policy with no learner at all: the
+    loop's timing under this run's load, for the ratio against the timing while learning."""
+    import numpy as np
+
+    from sim2real.deploy.realtime import control_thread_priority
+    from sim2real.export.policy import load_policy
+    from sim2real.finetune.arm_env import ArmEnv, ArmEnvConfig
+    from sim2real.policies import resolve_policy
+
+    pol = load_policy(resolve_policy(policy))
+    config = ArmEnvConfig(rate_hz=pol.meta.control_hz, start_timeout_s=30.0)
+    env = ArmEnv.for_policy(policy, spec, opts, config)
+    successes = []
+    try:
+        with control_thread_priority(opts.realtime):
+            for episode in range(episodes):
+                obs, _ = env.reset(seed=1_000_000 + episode)
+                truncated = False
+                while not truncated:
+                    obs, _, _, truncated, info = env.step(pol(obs))
+                successes.append(bool(info["is_success"]))
+        periods = np.asarray(env.periods_s)
+        jitter = np.abs(periods - env.period_s) * 1e3
+        return {
+            "success": float(np.mean(successes)),
+            "rate_hz": float(1.0 / periods.mean()),
+            "p50_jitter_ms": float(np.percentile(jitter, 50)),
+            "p99_jitter_ms": float(np.percentile(jitter, 99)),
+            "late_fraction": env.overruns / len(periods),
+        }
+    finally:
+        env.close()
+
+
 def main() -> None:
     from hardware.spec import load_spec
     from sim2real.deploy.runner import DeployOptions
@@ -79,6 +114,10 @@ def main() -> None:
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
     ap.add_argument("--out", type=Path, default=Path("runs/bench-finetune"))
+    ap.add_argument(
+        "--reference-episodes", type=int, default=10,
+        help="episodes with no learner first, on the same backend (0: none)",
+    )  # fmt: skip
     args = ap.parse_args()
 
     spec = load_spec()
@@ -99,10 +138,17 @@ def main() -> None:
         out = args.out / f"{tag}-s{seed}"
         if out.exists():
             shutil.rmtree(out)
+        opts = DeployOptions(backend="mock", plant=args.plant, watchdog_s=args.watchdog_s)
+        ref = None
+        if args.reference_episodes > 0:
+            ref = _reference(args.policy, spec, opts, args.reference_episodes)
+            emit("finetune_loop_reference", ref["rate_hz"], "Hz", seed=seed,
+                 episodes=args.reference_episodes, **{k: v for k, v in ref.items()
+                                                      if k != "rate_hz"}, **common)  # fmt: skip
         t0 = time.monotonic()
         fo = FinetuneOptions(
             policy=args.policy, out=out,
-            deploy=DeployOptions(backend="mock", plant=args.plant, watchdog_s=args.watchdog_s),
+            deploy=opts,
             minutes=args.minutes, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
             utd=args.utd, learning_starts=args.learning_starts, keys=False,
             eval_every_min=args.eval_every, eval_episodes=args.eval_episodes, seed=seed,
@@ -119,7 +165,13 @@ def main() -> None:
         emit("finetune_loop", loop["rate_hz"], "Hz", seed=seed,
              p50_jitter_ms=loop["period_jitter_ms_p50"], p99_jitter_ms=loop["period_jitter_ms_p99"],
              late_periods=loop["late_periods"], watchdog_trips=loop["watchdog_trips"],
+             late_fraction=loop["late_periods"] / max(summary["env_steps"], 1),
              **common)  # fmt: skip
+        if ref is not None:  # the learner's cost on the loop, under this run's load
+            emit("finetune_loop_vs_reference", loop["period_jitter_ms_p99"] / ref["p99_jitter_ms"],
+                 "ratio (p99 jitter, learning / no learner)", seed=seed,
+                 late_fraction_ratio=(loop["late_periods"] / max(summary["env_steps"], 1))
+                 / max(ref["late_fraction"], 1e-9), **common)  # fmt: skip
         emit("finetune_run", summary["episodes"], "episodes", seed=seed,
              arm_min=round(summary["arm_s"] / 60.0, 3), wall_min=round(wall_s / 60.0, 3),
              env_steps=summary["env_steps"], learner_updates=summary["learner_updates"],
