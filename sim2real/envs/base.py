@@ -302,12 +302,11 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._configure_fused()
 
         mujoco.mj_resetData(self.model, self.data)
-        spec = self.spec_arm
-        q0 = np.clip(
-            spec.home_rad + rng.uniform(-0.15, 0.15, spec.n_joints), spec.lower_rad, spec.upper_rad
-        )
-        self._targets = spec.actuator_home_rad.copy()
-        self._targets[: spec.n_joints] = q0
+        n_j = len(self._home_rad)
+        q0 = self._home_rad + rng.uniform(-0.15, 0.15, n_j)
+        q0 = np.minimum(np.maximum(q0, self._lo_rad), self._hi_rad)  # np.clip's bits, less cost
+        self._targets = self._actuator_home_rad.copy()
+        self._targets[:n_j] = q0
         self._sent = self._targets.copy()
         self._set_arm_qpos(q0)
         self.actuation.reset(q0)
@@ -319,8 +318,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         if start == START_HELD:
             self._start_held(rng, height_m)
         mujoco.mj_forward(self.model, self.data)
-        obs, _ = self._observe()
-        info = {"dr": self.dr_params, "is_success": self.task.is_success(self), "start": start}
+        obs, d = self._observe()
+        success = self.task.success_from_distance(self, d)  # is_success's bits, d is its norm
+        info = {"dr": self.dr_params, "is_success": success, "start": start}
         if self.privileged_space is not None:
             info["privileged_state"] = self.privileged_state()
         return obs, info
@@ -344,7 +344,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         noise = act.noise.take(self.np_random) if act.noise_rad > 0 else self._no_noise
         fused.actuate(
             self._sent, noise, act.noise_rad, self._servo_prm, servo.applied_rad,
-            servo.queue_rad, servo.head, self.data.ctrl, self._ctrl_grip,
+            servo.queue_rad, servo.head, self._ctrl, self._ctrl_grip,
         )  # fmt: skip
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         self.task.after_step(self)
@@ -406,7 +406,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
 
     def ee_position(self) -> np.ndarray:
         """True tool position (3,) in the base frame."""
-        return self.data.site_xpos[self._tool_site]
+        return self._tool_xpos
 
     def joint_positions(self) -> np.ndarray:
         """True joint angles (n_joints,)."""
@@ -460,6 +460,10 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         md = self.decoder.max_delta_rad
         self._max_delta = {np.dtype(np.float32): np.float32(md), np.dtype(np.float64): md}
         self._lo_rad, self._hi_rad = spec.lower_rad, spec.upper_rad
+        self._home_rad, self._actuator_home_rad = spec.home_rad, spec.actuator_home_rad
+        # MuJoCo's arrays are views of its buffers, valid while ``data`` lives: fetched once
+        self._qpos, self._ctrl = self.data.qpos, self.data.ctrl
+        self._tool_xpos = self.data.site_xpos[self._tool_site]
         g = spec.gripper
         closed, opened, gap = (g.closed_rad, g.open_rad, g.max_gap_m) if g else (0.0, 1.0, 1.0)
         self._decode_grip = np.array(
@@ -532,7 +536,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         uniforms = rng.random((2, len(points))) if occluding else self._no_uniforms
         vec = np.empty(self.builder.size, dtype=np.float32)
         d = fused.observe(
-            self.data.qpos, self._obs_qadr, self.data.site_xpos[self._tool_site], points,
+            self._qpos, self._obs_qadr, self._tool_xpos, points,
             self._prm, sensors.joint_bias, sensors.pos_bias, sensors.sigma_coef, sensors.cam_p_m,
             sensors.cam_z, sensors.base_R_cam, noise, uniforms, self._last_seen,
             self._blind_steps, state, self._hist_joints, self._hist_points, self._hist_blind,

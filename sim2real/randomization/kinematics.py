@@ -41,6 +41,7 @@ _LINK_AXES = (2, 2, 0)
 _LINK_GEOMS = ("turret", "upper_arm", "forearm")
 _JOINT_BODIES = ("turret", "upper_arm", "forearm")
 _WRIST_AXIS = np.array([0.0, 1.0, 0.0])  # the passive wrist_level hinge
+_ROWS = np.arange(4)  # the lengthened geoms (``_Plan.geoms``)
 
 
 @dataclass(frozen=True)
@@ -105,65 +106,112 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
     }
 
 
-def _turn(quat: np.ndarray, axis: np.ndarray, angle_rad: float) -> np.ndarray:
-    """``quat`` followed by a rotation of ``angle_rad`` about ``axis`` (in the body frame)."""
-    turn = np.zeros(4)
-    mujoco.mju_axisAngle2Quat(turn, np.asarray(axis, dtype=float), float(angle_rad))
-    out = np.zeros(4)
-    mujoco.mju_mulQuat(out, np.asarray(quat, dtype=float), turn)
-    return out
+@dataclass(frozen=True)
+class _Plan:
+    """What ``apply`` writes, with every term that depends on the nominal model alone worked out
+    once: a reset applies DR every episode, and this is most of its cost otherwise. The
+    per-episode arithmetic is the same operations on the same values, so the same bits."""
+
+    geoms: np.ndarray  # (4,) lengthened geoms: the three links', then the wrist's (tool forward)
+    along: np.ndarray  # (4,) local index of each one's length axis
+    aabb_at: np.ndarray  # (4,) its aabb half-length entry
+    box_rows: tuple[int, ...]  # rows whose bounding radius is |size| (not a capsule's)
+    centre: np.ndarray  # (4, 3) nominal geom_pos
+    direction: np.ndarray  # (4, 3) centre / |centre|
+    size: np.ndarray  # (4, 3) nominal geom_size
+    aabb: np.ndarray  # (4, 6) nominal geom_aabb
+    link_pos: np.ndarray  # (3,) nominal body_pos of the link bodies along their axes
+    ipos_rows: np.ndarray  # joint bodies with a centre of mass off their origin
+    ipos: np.ndarray  # (m, 3) their nominal body_ipos
+    ipos_half_unit: np.ndarray  # (m, 3) ipos / |ipos| * 0.5
+    quats: np.ndarray  # (4, 4) nominal body_quat: the joint bodies, then the wrist
+    axes: np.ndarray  # (4, 3) the joint axes, then the wrist's
+    site_pos: np.ndarray  # (3,) nominal tool site
+    tool_body_pos: np.ndarray  # (t, 3) nominal finger bodies
+    palm_pos: np.ndarray  # (3,) nominal palm geom (unused without a gripper)
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel, nominal: ModelSnapshot, k: _Ids) -> _Plan:
+        geoms = np.append(k.link_geoms, k.wrist_geom)
+        along = np.array([2, 1, 1, 0])
+        centre = nominal["geom_pos"][geoms]
+        norms = np.array([_norm(c) for c in centre])
+        jb = k.joint_bodies
+        ipos = nominal["body_ipos"][jb]
+        ipos_norm = np.array([_norm(v) for v in ipos])
+        rows = np.flatnonzero(ipos_norm > 0)
+        capsule = model.geom_type[geoms] == mujoco.mjtGeom.mjGEOM_CAPSULE
+        return cls(
+            geoms=geoms,
+            along=along,
+            aabb_at=np.where(along == 1, 3 + 2, 3 + along),  # capsule length is its local z
+            box_rows=tuple(int(i) for i in np.flatnonzero(~capsule)),
+            centre=centre,
+            direction=centre / norms[:, None],
+            size=nominal["geom_size"][geoms],
+            aabb=nominal["geom_aabb"][geoms],
+            link_pos=nominal["body_pos"][k.link_bodies, _LINK_AXES],
+            ipos_rows=rows,
+            ipos=ipos[rows],
+            ipos_half_unit=ipos[rows] / ipos_norm[rows, None] * 0.5,
+            quats=nominal["body_quat"][np.append(jb, k.wrist_body)],
+            axes=np.vstack([k.joint_axes, _WRIST_AXIS]),
+            site_pos=nominal["site_pos"][k.tool_site],
+            tool_body_pos=nominal["body_pos"][k.tool_bodies],
+            palm_pos=nominal["geom_pos"][max(k.palm_geom, 0)],
+        )
 
 
-def _lengthen(
-    model: mujoco.MjModel, nominal: ModelSnapshot, geom: int, along: int, delta_m: float
-) -> None:
-    """A geom drawn from its body's origin along ``along`` (local index of its length axis)
-    grows by ``delta_m`` at the far end: centre moves by half, half-length grows by half."""
-    half = 0.5 * delta_m
-    centre = nominal["geom_pos"][geom]
-    direction = centre / _norm(centre)
-    model.geom_pos[geom] = centre + direction * half
-    size = nominal["geom_size"][geom].copy()
-    size[along] += half
-    model.geom_size[geom] = size
-    capsule = model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_CAPSULE
-    model.geom_rbound[geom] = size[0] + size[1] if capsule else _norm(size)
-    aabb = nominal["geom_aabb"][geom].copy()
-    aabb[3 + 2 if along == 1 else 3 + along] += half  # capsule length (size[1]) is its local z
-    model.geom_aabb[geom] = aabb
+_PLANS: weakref.WeakKeyDictionary[ModelSnapshot, _Plan] = weakref.WeakKeyDictionary()
 
 
 def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
     """Write nominal + deltas (never compounds); the caller restored nominal before. A model
-    without the arm3 twin's linkage (the Kuka grasp scene) has no hobby-arm geometry to vary."""
+    without the arm3 twin's linkage (the Kuka grasp scene) has no hobby-arm geometry to vary.
+
+    Links lengthen at their far end: the next body moves along the link, the link's geoms'
+    centres move by half (their half-lengths, bounding radii and boxes grow by half), and the
+    centres of mass move by half along their offset. Joint bodies turn by their offsets; the
+    wrist turns back by the pitch offsets; the tool (site, fingers, palm) shifts."""
     k = _ids_of(model, ids)
     if k is None:
         return
+    p = _PLANS.get(nominal)
+    if p is None:
+        p = _PLANS[nominal] = _Plan.of(model, nominal, k)
     links = np.asarray(params["link_length_delta_m"], dtype=float)
     offsets = np.asarray(params["joint_offset_rad"], dtype=float)
     tool = np.asarray(params["tool_offset_delta_m"], dtype=float)
 
-    for body, axis, delta in zip(k.link_bodies, _LINK_AXES, links, strict=True):
-        model.body_pos[body, axis] = nominal["body_pos"][body, axis] + delta
-    # geoms and centres of mass along the links: turret box (half-size z), capsules (size[1])
-    for geom, along, delta in zip(k.link_geoms, (2, 1, 1), links, strict=True):
-        _lengthen(model, nominal, int(geom), along, float(delta))
-    for body, delta in zip(k.joint_bodies, links, strict=True):
-        ipos = nominal["body_ipos"][body]
-        norm = _norm(ipos)
-        if norm > 0:
-            model.body_ipos[body] = ipos + ipos / norm * 0.5 * delta
+    model.body_pos[k.link_bodies, _LINK_AXES] = p.link_pos + links
+    half = 0.5 * np.append(links, tool[0])  # the three links, then the wrist by tool forward
+    model.geom_pos[p.geoms] = p.centre + p.direction * half[:, None]
+    size = p.size.copy()
+    size[_ROWS, p.along] += half
+    model.geom_size[p.geoms] = size
+    rbound = size[:, 0] + size[:, 1]
+    for i in p.box_rows:
+        rbound[i] = _norm(size[i])
+    model.geom_rbound[p.geoms] = rbound
+    aabb = p.aabb.copy()
+    aabb[_ROWS, p.aabb_at] += half
+    model.geom_aabb[p.geoms] = aabb
+    if len(p.ipos_rows):
+        rows = p.ipos_rows
+        model.body_ipos[k.joint_bodies[rows]] = p.ipos + p.ipos_half_unit * links[rows, None]
 
-    for body, axis, offset in zip(k.joint_bodies, k.joint_axes, offsets, strict=True):
-        model.body_quat[body] = _turn(nominal["body_quat"][body], axis, offset)
     # level gripper: the wrist undoes the pitch offsets its tendon cannot see
     level = -float(k.pitch_signs @ offsets[1:3])
-    model.body_quat[k.wrist_body] = _turn(nominal["body_quat"][k.wrist_body], _WRIST_AXIS, level)
+    bodies = np.append(k.joint_bodies, k.wrist_body)
+    quat = model.body_quat
+    turn = np.zeros(4)
+    for i, angle in enumerate((*offsets.tolist(), level)):
+        mujoco.mju_axisAngle2Quat(turn, p.axes[i], angle)
+        mujoco.mju_mulQuat(quat[bodies[i]], p.quats[i], turn)
 
     shift = np.array([tool[0], 0.0, -tool[1]])  # forward is +x, down is -z of the level wrist
-    model.site_pos[k.tool_site] = nominal["site_pos"][k.tool_site] + shift
-    for body in k.tool_bodies:
-        model.body_pos[body] = nominal["body_pos"][body] + shift
+    model.site_pos[k.tool_site] = p.site_pos + shift
+    if len(k.tool_bodies):
+        model.body_pos[k.tool_bodies] = p.tool_body_pos + shift
     if k.palm_geom >= 0:
-        model.geom_pos[k.palm_geom] = nominal["geom_pos"][k.palm_geom] + shift
-    _lengthen(model, nominal, k.wrist_geom, 0, float(tool[0]))
+        model.geom_pos[k.palm_geom] = p.palm_pos + shift

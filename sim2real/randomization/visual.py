@@ -13,7 +13,8 @@ from sim2real.randomization.config import Range
 
 def _unit_dirs(rng: np.random.Generator, n: int) -> np.ndarray:
     v = rng.standard_normal((n, 3))
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
+    # np.linalg.norm(v, axis=1, keepdims=True)'s arithmetic, without its overhead (every reset)
+    return v / np.sqrt(np.add.reduce(v * v, axis=1, keepdims=True))
 
 
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:
@@ -33,10 +34,12 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
 def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
     lights, geoms, cams = ids.lights, ids.colour_geoms, ids.cameras
     scale = np.reshape(params["light_diffuse_scale"], (-1, 1))
-    model.light_diffuse[lights] = np.clip(nominal["light_diffuse"][lights] * scale, 0.0, 1.0)
+    # np.minimum(np.maximum(...)) is np.clip's arithmetic at a third of its cost on small arrays
+    diffuse = nominal["light_diffuse"][lights] * scale
+    model.light_diffuse[lights] = np.minimum(np.maximum(diffuse, 0.0), 1.0)
     model.light_pos[lights] = nominal["light_pos"][lights] + params["light_pos_offset_m"]
     rgba = nominal["geom_rgba"][geoms].copy()
-    rgba[:, :3] = np.clip(rgba[:, :3] + params["rgba_offset"], 0.0, 1.0)
+    rgba[:, :3] = np.minimum(np.maximum(rgba[:, :3] + params["rgba_offset"], 0.0), 1.0)
     model.geom_rgba[geoms] = rgba
     model.cam_pos[cams] = nominal["cam_pos"][cams] + params["camera_pos_offset_m"]
     model.cam_fovy[cams] = nominal["cam_fovy"][cams] + params["camera_fovy_offset_deg"]
