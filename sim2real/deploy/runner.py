@@ -57,7 +57,7 @@ class DeployOptions:
     watchdog_s: float | None = None
     # sim: "realtime" lets physics run on with the wall clock, as a real arm does while the host
     # thinks; "lockstep" advances it one control period per command, as the env steps, whatever
-    # the machine's load (known issue: homing after a grasp can jam the simulated fingers there)
+    # the machine's load (bench/deploy_mock.py measures sim/env on it)
     sim_clock: str = "realtime"
     emulator_options: dict[str, Any] = field(default_factory=dict)
 
