@@ -73,15 +73,20 @@ def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, fl
     pol = load_policy(resolve_policy(policy))
     config = ArmEnvConfig(rate_hz=pol.meta.control_hz, start_timeout_s=30.0)
     env = ArmEnv.for_policy(policy, spec, opts, config)
-    successes = []
+    from hardware.errors import HardwareError
+
+    successes, lost = [], 0
     try:
         with control_thread_priority(opts.realtime):
             for episode in range(episodes):
-                obs, _ = env.reset(seed=1_000_000 + episode)
-                truncated = False
-                while not truncated:
-                    obs, _, _, truncated, info = env.step(pol(obs))
-                successes.append(bool(info["is_success"]))
+                try:  # as finetune does on a simulated arm: a load-starved episode is lost
+                    obs, _ = env.reset(seed=1_000_000 + episode)
+                    truncated = False
+                    while not truncated:
+                        obs, _, _, truncated, info = env.step(pol(obs))
+                    successes.append(bool(info["is_success"]))
+                except HardwareError:
+                    lost += 1
         periods = np.asarray(env.periods_s)
         jitter = np.abs(periods - env.period_s) * 1e3
         return {
@@ -90,6 +95,7 @@ def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, fl
             "p50_jitter_ms": float(np.percentile(jitter, 50)),
             "p99_jitter_ms": float(np.percentile(jitter, 99)),
             "late_fraction": env.overruns / len(periods),
+            "lost_episodes": lost,
         }
     finally:
         env.close()

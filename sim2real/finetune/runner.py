@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from hardware.errors import HardwareError
+from hardware.errors import HardwareError, NoReplyError
 from hardware.spec import ArmSpec
 from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
@@ -365,24 +365,25 @@ class _Run:
                         eval_left -= 1
 
     def _recover(self, exc: HardwareError, env: Any, t0: float) -> None:
-        """A watchdog trip on a simulated arm (the machine was too busy to feed it): the episode
-        in flight is lost (ArmEnv parked the arm), the next reset homes it again. Anything else,
-        any trip on a real arm, or three in a row, stops the run (``--resume`` continues)."""
+        """A watchdog trip or an unanswered command on a simulated arm (the machine was too busy
+        to feed it, or the mock arm's process to answer): the episode in flight is lost (ArmEnv
+        parked the arm), the next reset homes it again. Anything else, anything on a real arm,
+        or three in a row, stops the run (``--resume`` continues)."""
         if (
-            "watchdog" not in str(exc)
+            not (isinstance(exc, NoReplyError) or "watchdog" in str(exc))
             or self.fo.deploy.backend == "serial"
             or self._consecutive_trips >= MAX_CONSECUTIVE_TRIPS
         ):
             raise exc
         self._consecutive_trips += 1
-        self.watchdog_trips += 1
+        self.watchdog_trips += int("watchdog" in str(exc))
         self.state["arm_s"] = float(self.state["arm_s"]) + time.monotonic() - t0
         self.state["stops"].append(
             {"reason": _why(exc), "episode": self.state["episodes"], "recovered": True,
              "env_steps": self.state["env_steps"]}
         )  # fmt: skip
         log.warning(
-            "episode %d lost to a watchdog trip (%s): homing for the next",
+            "episode %d lost (%s): homing for the next",
             self.state["episodes"],
             exc,
         )
