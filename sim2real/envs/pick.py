@@ -204,6 +204,8 @@ class PickTask(Task):
         self._cube_qadr = -1
         self._finger_geoms: frozenset[int] = frozenset()
         self._finger_ids = np.zeros(0, dtype=np.int32)
+        self._cube_xpos = np.zeros(3)  # set with the ids at the first reset
+        self._cube_points = np.zeros((1, 3))
         self._shaping_weights = np.array(
             [REACH_WEIGHT_PER_M, GRASP_BONUS, LIFT_WEIGHT_PER_M, LIFT_M]
         )
@@ -216,6 +218,9 @@ class PickTask(Task):
             self._cube_geom = m.geom(names.CUBE_GEOM).id
             self._finger_geoms = frozenset(m.geom(g).id for g in names.FINGER_GEOMS)
             self._finger_ids = np.array(sorted(self._finger_geoms), dtype=np.int32)
+            # views of MuJoCo's buffer (valid while the env's data lives): read every step
+            self._cube_xpos = env.data.xpos[self._cube_body]
+            self._cube_points = env.data.xpos[self._cube_body : self._cube_body + 1]
         xy, yaw = sample_cube_pose(rng)
         xy = xy + env.dr_params.get("object", {}).get("init_xy_offset_m", np.zeros(2))
         half = float(m.geom_size[env.ids.cube_geom][2])
@@ -226,8 +231,7 @@ class PickTask(Task):
         self.rest_z_m = half
         self.goal_m = lift_goal(np.array([xy[0], xy[1], half]))
         self.obs_aux[0] = self.goal_m
-        env.data.mocap_pos[0] = self.goal_m
-        mujoco.mj_forward(m, env.data)
+        env.data.mocap_pos[0] = self.goal_m  # the env's reset runs mj_forward next
 
     def held_start(
         self, env: Arm3Env, rng: np.random.Generator, height_m: float | None
@@ -247,6 +251,7 @@ class PickTask(Task):
         grip = spec.gripper
         if grip is None:  # pragma: no cover - the decoder already refuses a gripperless spec
             raise ConfigError(f"spec {spec.name!r} has no gripper for a held start")
+        mujoco.mj_forward(m, d)  # where ``reset`` put the cube
         rest = self.cube_position(env).copy()
         q = spec.inverse_kinematics(rest + (0.0, 0.0, height_m))
         if q is None:
@@ -275,13 +280,13 @@ class PickTask(Task):
         return targets
 
     def cube_position(self, env: Arm3Env) -> np.ndarray:
-        return env.data.xpos[self._cube_body]
+        return self._cube_xpos
 
     def true_points(self, env: Arm3Env) -> np.ndarray:
-        return self.cube_position(env)[None]
+        return self._cube_points
 
     def true_goals(self, env: Arm3Env) -> tuple[np.ndarray, np.ndarray]:
-        return self.cube_position(env), self.goal_m
+        return self._cube_xpos, self.goal_m
 
     def extra_fields(self) -> tuple[ObsField, ...]:
         return (
@@ -321,7 +326,7 @@ class PickTask(Task):
         table, and a cube knocked upwards without a grasp earns nothing from it."""
         return float(
             fused.grasp_shaping(
-                env.ee_position(), self.cube_position(env), env.data.contact.geom,
+                env.ee_position(), self._cube_xpos, env.data.contact.geom,
                 self._cube_geom, self._finger_ids, self.rest_z_m, self._shaping_weights,
             )
         )  # fmt: skip
