@@ -12,6 +12,10 @@ user options) turn single differences off on the deploy side, to price each one:
 * ``--clock realtime``: the sim backend's physics runs with the wall clock (at ``--rate 20``),
   as ``sim2real deploy --backend sim`` does by default, instead of one period per command.
 
+``--loop-seed S`` instead runs the sim backend alone on the loop's own placements (drawn from
+``LoopConfig(seed=S)``, as ``bench/deploy_mock.py`` draws them with the default seed), to tell
+placement luck from the pipeline: ``pick_gap_sim_loop_placements``.
+
 JSON lines: ``pick_gap_env_success``, ``pick_gap_sim_success``, the paired table
 (``pick_gap_pairs``: both succeed / env only / sim only / neither), drop counts on both sides,
 and the first step where the observations part (``pick_gap_obs_diff``: per field, the median
@@ -152,6 +156,28 @@ def sim_episodes(
     return result.episodes, {k: data[k] for k in data.files}
 
 
+def loop_placements(ref: str, episodes: int, seed: int, rate_hz: float) -> None:
+    """The sim backend (lockstep) alone, on the placements the deploy loop draws itself."""
+    from hardware.spec import load_spec
+    from sim2real.deploy.loop import LoopConfig
+    from sim2real.deploy.policy_io import policy_io
+    from sim2real.deploy.runner import DeployOptions, run_policy
+    from sim2real.evaluate import wilson_interval
+    from sim2real.export.policy import load_policy
+    from sim2real.policies import resolve_policy
+
+    spec = load_spec()
+    policy = load_policy(resolve_policy(ref))
+    result = run_policy(
+        lambda obs: policy(obs), policy_io(spec, policy.meta), spec,
+        DeployOptions(backend="sim", sim_clock="lockstep"),
+        LoopConfig(episodes=episodes, rate_hz=rate_hz, seed=seed),
+    )  # fmt: skip
+    k = result.successes
+    emit("pick_gap_sim_loop_placements", k / episodes, "fraction", episodes=episodes,
+         loop_seed=seed, ci95=[round(v, 4) for v in wilson_interval(k, episodes)])  # fmt: skip
+
+
 def main() -> None:
     import torch
 
@@ -170,8 +196,12 @@ def main() -> None:
     parser.add_argument("--env-start", action="store_true")
     parser.add_argument("--clock", default="lockstep", choices=("lockstep", "realtime"))
     parser.add_argument("--compare-steps", type=int, default=5)
+    parser.add_argument("--loop-seed", type=int, default=None)
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
+    if args.loop_seed is not None:
+        loop_placements(args.policy, args.episodes, args.loop_seed, args.rate)
+        return
     target = EvalTarget.load(args.policy)
     seeds = target.held_out_seeds(args.episodes, args.seed_offset)
     env_eps = env_episodes(target, args.dr, seeds, args.compare_steps)
