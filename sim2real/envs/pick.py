@@ -323,7 +323,10 @@ class PickTask(Task):
         5/m of height, so the first centimetres (+0.05/cm) are little next to the +0.5 grasp
         bonus that a fumble loses. The lift term pays +10/m more while grasped (at most +0.7 at the
         lift goal): holding the cube 5 cm up, the shaping pays 1.0 per step against 0.5 on the
-        table, and a cube knocked upwards without a grasp earns nothing from it."""
+        table, and a cube knocked upwards without a grasp earns nothing from it.
+
+        Compiled (``fused.grasp_shaping``, every step); ``is_grasped`` and ``lift_m`` are its
+        reference (``tests/sim2real/envs/test_fused.py``)."""
         return float(
             fused.grasp_shaping(
                 env.ee_position(), self._cube_xpos, env.data.contact.geom,

@@ -6,7 +6,7 @@ import json
 import subprocess
 import sys
 
-HEAVY = ("mujoco", "torch", "robosuite")
+HEAVY = ("mujoco", "torch", "robosuite", "numba")
 
 _PROBE = """
 import json, sys
