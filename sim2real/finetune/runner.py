@@ -301,14 +301,20 @@ class _Run:
             while True:
                 used_s = float(st["arm_s"]) - self.start_arm_s
                 run_eps = int(st["episodes"]) - self.start_episodes
-                if eval_left == 0 and next_eval is not None and st["arm_s"] >= next_eval:
+                over = used_s >= budget_s or (
+                    fo.max_episodes is not None and run_eps >= fo.max_episodes
+                )
+                if (
+                    not over
+                    and eval_left == 0
+                    and next_eval is not None
+                    and st["arm_s"] >= next_eval
+                ):
                     eval_left = fo.eval_episodes
                     st["evals"].append({"arm_min": st["arm_s"] / 60.0, "successes": 0, "n": 0,
                                         "end_episode": None})  # fmt: skip
                     next_eval += fo.eval_every_min * 60.0  # type: ignore[operator]
-                if eval_left == 0 and (
-                    used_s >= budget_s or (fo.max_episodes is not None and run_eps >= fo.max_episodes)
-                ):  # fmt: skip
+                if eval_left == 0 and over:
                     last = st["evals"][-1] if st["evals"] else None
                     if next_eval is None or (last is not None and last["end_episode"] is not None
                                              and last["end_episode"] == st["episodes"]):  # fmt: skip
