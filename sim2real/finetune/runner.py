@@ -432,7 +432,8 @@ class _Run:
         updates = learner.updates - int(st.get("updates_base", 0))
         self.report({"event": "episode", **record, "learner_updates": updates,
                      "success_last_n": self._recent_success(),
-                     **{k: round(v, 3) for k, v in env.timing().items()}})  # fmt: skip
+                     **{k: round(v, 3) for k, v in env.timing().items()},
+                     "watchdog_trips": self.watchdog_trips, "safety": env.safety_stats})  # fmt: skip
 
     def _recent_success(self) -> float:
         recent = [e["success"] for e in self.state["episode_log"] if e["kind"] == "train"]
