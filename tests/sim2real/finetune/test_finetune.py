@@ -61,11 +61,11 @@ def _alive(pid: int) -> bool:
 
 
 def test_mock_finetune_learns_within_limits_and_resume_continues(
-    tmp_path: Path, spec: ArmSpec
+    tmp_path: Path, spec: ArmSpec, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    out = tmp_path / "ft"
+    out, dataset = tmp_path / "ft", tmp_path / "ds"
     events: list[dict[str, Any]] = []
-    first = finetune(_options(out), spec, events.append)
+    first = finetune(_options(out, record_dataset=dataset), spec, events.append)
     assert first["stopped"] is None and first["episodes"] == 1
     steps = first["env_steps"]
     assert steps >= 1 and first["learner_updates"] > 0
@@ -100,6 +100,11 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
     state = json.loads((out / "finetune.json").read_text())
     assert state["segments"] == 2 and state["env_steps"] == second["env_steps"]
     assert [e["episode"] for e in state["episode_log"]] == [0, 1]
+
+    # the first run's episode as a LeRobot dataset, read back
+    capsys.readouterr()
+    assert main(["replay", str(dataset), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["episodes"] == 1
 
     # the output is a run directory: export and evaluate take it
     assert main(["export", str(out), "--check", "5", "--json"]) == 0
