@@ -48,10 +48,10 @@ def breakdown(log_path: Path, nominal_s: float, over_ms: float = 5.0) -> dict[st
     import numpy as np
 
     log = np.load(log_path)
-    period = log["period_s"][:, 0]
-    late = log["wake_late_s"][:, 0]
+    period = log["period_s"].reshape(-1)
+    late = log["wake_late_s"].reshape(-1)
     sections = ("read", "perceive", "infer", "command")
-    work = {s: log[f"{s}_s"][:, 0] for s in sections}
+    work = {s: log[f"{s}_s"].reshape(-1) for s in sections}
     idx = [k for k in range(1, len(period)) if abs(period[k] - nominal_s) * 1e3 > over_ms]
     out: dict[str, object] = {"periods": int(np.isfinite(period).sum()), "long": len(idx)}
     if not idx:

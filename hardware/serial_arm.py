@@ -222,6 +222,22 @@ class SerialArm(ArmBase):
             self._needs_resync = False
 
     # ---- extras ---------------------------------------------------------------------------
+    def set_pipelined(self, on: bool) -> None:
+        """Pipelined commands where the protocol has them (s2r): ``command`` returns once its
+        bytes are out and its reply is collected before the next request (a real-time loop
+        waits for one round trip a period, its reading). Turning it off collects it now."""
+        with self._lock:
+            proto = self.proto
+            if proto is None or not proto.supports_pipeline:
+                return
+            proto.pipeline = on
+            if not on:
+                try:
+                    proto.settle()
+                except (DeviceResetError, SafetyError) as exc:
+                    self._latch(exc)
+                    raise
+
     def ping(self) -> DeviceInfo:
         with self._lock:
             self._require_connected()

@@ -230,17 +230,28 @@ class Link:
             self._frames.clear()
         return n
 
+    def post(self, request: bytes) -> int:
+        """Write ``request`` without waiting for its reply (a pipelined command: the reply is
+        collected by the next ``transact(..., queued=True)``). Returns the stale frames
+        dropped first, as ``transact`` does."""
+        with self._tx_lock:
+            stale = self.drain()
+            self.write(request)
+            return stale
+
     def transact(
         self,
         request: bytes | None,
         on_frame: Callable[[float, Any], bool],
         timeout_s: float,
+        queued: bool = False,
     ) -> tuple[bool, int]:
         """Write ``request`` and feed arriving frames to ``on_frame`` until it returns True or
         the timeout passes. Returns (done, stale) where stale counts frames queued before the
-        request (late replies to an earlier attempt)."""
+        request (late replies to an earlier attempt). ``queued``: the frames already queued
+        are fed too (the reply to a ``post``), not dropped."""
         with self._tx_lock:
-            stale = self.drain()
+            stale = 0 if queued else self.drain()
             if request:
                 self.write(request)
             deadline = time.monotonic() + timeout_s
@@ -329,6 +340,14 @@ class Protocol(ABC):
 
     def forget_reset(self) -> None:  # noqa: B027 - optional hook
         """Accept a rebooted device as the new normal (called by enable())."""
+
+    # Pipelined commands (``write_targets`` returns once its bytes are out; the reply is
+    # collected by ``settle`` before the next request), where a protocol implements them.
+    supports_pipeline: ClassVar[bool] = False
+    pipeline: bool = False
+
+    def settle(self) -> None:  # noqa: B027 - optional hook
+        """Collect the reply to a posted command, if one is outstanding."""
 
     # Where servos without position feedback are assumed to rest while unpowered (set by
     # SerialArm from the spec's park pose).

@@ -16,6 +16,7 @@ The same framer and codecs run on the device side (the emulator's firmware model
 from __future__ import annotations
 
 import binascii
+import contextlib
 import struct
 import time
 from collections.abc import Sequence
@@ -24,7 +25,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from hardware.errors import DeviceResetError, ProtocolError, SafetyError
+from hardware.errors import DeviceResetError, HardwareError, ProtocolError, SafetyError
 from hardware.joint_calibration import UnitFrame
 from hardware.protocols.base import DeviceInfo, Framer, Protocol, UnitState
 from hardware.spec import ArmSpec
@@ -266,11 +267,17 @@ def decode_stats(payload: bytes) -> dict[str, int]:
 # ---- host driver --------------------------------------------------------------------------
 class S2RProtocol(Protocol):
     """Talks to arm3 firmware (or its emulator): every request is acknowledged, CRC-checked,
-    retried with the same SEQ (the device recognises a retransmission and does not re-apply it)."""
+    retried with the same SEQ (the device recognises a retransmission and does not re-apply it).
+
+    ``pipeline``: ``write_targets`` sends SET_TARGETS and returns at once; its reply is collected
+    before the next request goes out (``settle``), and a lost one is retransmitted then with the
+    same SEQ, as a retry is. A control loop then waits for one round trip a period (its
+    reading), not two: the command's reply arrives while it sleeps."""
 
     name = "s2r"
     default_baud = 115200
     description = "sim2real arm3 firmware (framed binary, CRC-16)"
+    supports_pipeline = True
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -278,6 +285,8 @@ class S2RProtocol(Protocol):
         self.boot_id: int | None = None
         self._reset_to: int | None = None
         self.last_flags = 0
+        self.pipeline = False
+        self._pending: tuple[int, bytes] | None = None  # a posted SET_TARGETS: (seq, frame)
 
     @classmethod
     def unit_frame(cls, spec: ArmSpec) -> UnitFrame:
@@ -296,12 +305,31 @@ class S2RProtocol(Protocol):
         # mid-frame; the CRC and the rescan catch anything the gap rule would have.
         return S2RFramer(gap_s=HOST_GAP_S)
 
+    def settle(self) -> None:
+        """Collect the reply to a posted SET_TARGETS (its state checks the boot id; a refusal
+        raises here). Waits only if it has not arrived yet."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            self._state(self._exchange(pending[0], pending[1], SET_TARGETS, posted=True))
+
     def _request(self, msg_type: int, payload: bytes = b"") -> S2RFrame:
+        if msg_type == TORQUE and payload == b"\x00":
+            with contextlib.suppress(HardwareError):  # torque off goes out whatever happened
+                self.settle()  # to the posted command
+        else:
+            self.settle()
         self._seq = (self._seq + 1) & 0xFF
         seq = self._seq
-        frame_bytes = encode_frame(seq, msg_type, payload)
+        return self._exchange(seq, encode_frame(seq, msg_type, payload), msg_type)
+
+    def _exchange(
+        self, seq: int, frame_bytes: bytes, msg_type: int, posted: bool = False
+    ) -> S2RFrame:
+        """Send ``frame_bytes`` (unless ``posted``: it went out already, and its reply may be
+        queued) and wait for its reply, retransmitting with the same SEQ."""
         want = msg_type | REPLY
         what = MESSAGE_NAMES.get(msg_type, hex(msg_type))
+        first = [posted]
 
         def attempt() -> S2RFrame | None:
             got: list[S2RFrame] = []
@@ -315,7 +343,9 @@ class S2RProtocol(Protocol):
                 late += 1
                 return False
 
-            done, stale = self.link.transact(frame_bytes, on_frame, self.timeout_s)
+            queued, first[0] = first[0], False
+            request = None if queued else frame_bytes
+            done, stale = self.link.transact(request, on_frame, self.timeout_s, queued=queued)
             self.stats.stale_frames += stale + late
             if not done:
                 self.stats.timeouts += 1
@@ -407,7 +437,14 @@ class S2RProtocol(Protocol):
         return self._state(self._request(READ_STATE))
 
     def write_targets(self, units: np.ndarray) -> UnitState | None:
-        return self._state(self._request(SET_TARGETS, encode_targets(units)))
+        if not self.pipeline:
+            return self._state(self._request(SET_TARGETS, encode_targets(units)))
+        self.settle()
+        self._seq = (self._seq + 1) & 0xFF
+        frame_bytes = encode_frame(self._seq, SET_TARGETS, encode_targets(units))
+        self.stats.stale_frames += self.link.post(frame_bytes)
+        self._pending = (self._seq, frame_bytes)
+        return None
 
     def set_torque(self, on: bool, hold_units: np.ndarray | None = None) -> None:
         """The firmware holds its current output pulse when torque comes on."""

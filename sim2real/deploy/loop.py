@@ -287,6 +287,7 @@ class DeployLoop:
                 next_t = time.perf_counter()
                 last_start = next_t
                 slept = False  # the last period ended in a sleep to next_t
+                self._pipeline(True)
                 for step in range(self.steps):
                     start = time.perf_counter()
                     late = start - next_t if slept else math.nan
@@ -357,6 +358,7 @@ class DeployLoop:
                 else:  # the last command gets one whole period to act, then it is judged
                     _sleep_until(t4 + period)
                     reason = self._judge_last(contract, sent) or reason
+                self._pipeline(False)
                 blind += invalid
                 out = contract.outcome()
                 episodes.append(EpisodeRecord(out.success, out.distance_m, out.figures, reason))
@@ -627,8 +629,19 @@ class DeployLoop:
             log.warning("park failed: %s", exc)
             self._safe_stop()
 
+    def _pipeline(self, on: bool) -> None:
+        """Pipelined commands (``SerialArm.set_pipelined``) in an episode's periods only: a
+        period then waits for one serial round trip, its reading, not two."""
+        setter = getattr(self.arm, "set_pipelined", None)
+        if setter is not None and not self.config.dry_run:
+            setter(on)
+
     def _safe_stop(self) -> None:
         """Hold, park if the arm still answers, then torque off (close does it)."""
+        try:
+            self._pipeline(False)
+        except Exception as exc:  # the posted command's reply is lost: stop all the same
+            log.warning("the last command's reply: %s", exc)
         try:
             if self.arm.is_enabled and not self.config.dry_run:
                 self.arm.hold()
