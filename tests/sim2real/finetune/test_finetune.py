@@ -200,3 +200,76 @@ def test_estop_key_through_a_pty_stops_the_arm_keeps_a_checkpoint(tmp_path: Path
     assert [i["action"] for i in state["interventions"]] == ["estop"]
     assert (out / "checkpoints" / state["checkpoint"]).is_file()
     assert state["episodes"] >= 1
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every process below ``pid`` (its mock arm, cameras, learner), read from /proc."""
+    parents: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (FileNotFoundError, ProcessLookupError, IndexError, ValueError):
+                continue
+    found, frontier = set(), {pid}
+    while frontier:
+        children = {c for c, p in parents.items() if p in frontier} - found
+        found |= children
+        frontier = children
+    return found
+
+
+@pytest.mark.slow
+def test_sigkill_mid_finetune_the_learner_dies_and_resume_loses_at_most_one_episode(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "ft"
+    cmd = [
+        sys.executable, "-m", "sim2real", "finetune", "reach-ddpg", "--out", str(out),
+        "--learning-starts", "20", "--watchdog-s", str(MOCK["watchdog_s"]),
+        "--start-timeout", "60", "--json", "--no-keys", "--minutes", "10",
+    ]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        preexec_fn=_default_signals,
+    )  # fmt: skip
+    started: set[int] = set()
+    learner_pid = None
+    reported = 0
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            event = json.loads(line)
+            if event["event"] == "learner_ready":
+                learner_pid = event["learner_pid"]
+            if event["event"] == "episode":
+                reported += 1
+                if reported == 2:
+                    time.sleep(1.0)  # mid-way into the next episode (or its start)
+                    started = _descendants(proc.pid)
+                    proc.kill()
+                    break
+        proc.wait(timeout=HANG_S)
+        assert learner_pid is not None
+        deadline = time.monotonic() + 30.0
+        while _alive(learner_pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _alive(learner_pid), "the learner outlived a SIGKILLed parent"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for pid in started:  # the mock arm and cameras, whatever happened
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+    state = json.loads((out / "finetune.json").read_text())
+    assert state["episodes"] >= reported  # every finished episode was checkpointed first
+    resumed = subprocess.run(
+        [*cmd, "--resume", "--max-episodes", "1"], cwd=ROOT, capture_output=True, text=True,
+        timeout=HANG_S, preexec_fn=_default_signals,
+    )  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    summary = json.loads(resumed.stdout.strip().splitlines()[-1])
+    assert summary["episodes"] == state["episodes"] + 1
+    assert summary["env_steps"] > state["env_steps"]
