@@ -22,7 +22,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -513,7 +513,6 @@ def _why(exc: BaseException) -> str:
 def finetune(
     fo: FinetuneOptions, spec: ArmSpec, report: Report = lambda event: None
 ) -> dict[str, Any]:
-    """Fine-tune ``fo.policy`` on ``fo.deploy``'s arm; the summary (also after an e-stop)."""
-    if fo.deploy.watchdog_s is not None and fo.deploy.backend == "serial":
-        fo = replace(fo, deploy=replace(fo.deploy, watchdog_s=None))
+    """Fine-tune ``fo.policy`` on ``fo.deploy``'s arm; the summary (also after an e-stop, a
+    start or blind timeout: ``summary['stopped']`` says why)."""
     return _Run(fo, spec, report).run()
