@@ -155,6 +155,9 @@ def main() -> None:
             ratio = rates["sim"] / env["default"] if env["default"] > 0 else float("nan")
             emit("sim_vs_env_success", round(ratio, 3), "ratio", policy=ref, target=0.9,
                  passed=ratio >= 0.9)  # fmt: skip
+            # the sim backend runs the nominal model, as DR `none` does: the like-for-like ratio
+            like = rates["sim"] / env["none"] if env["none"] > 0 else float("nan")
+            emit("sim_vs_env_none_success", round(like, 3), "ratio", policy=ref)
         if {"sim", "mock"} <= set(rates):
             ratio = rates["mock"] / rates["sim"] if rates["sim"] > 0 else float("nan")
             emit("mock_vs_sim_success", round(ratio, 3), "ratio", policy=ref, target=0.9,
