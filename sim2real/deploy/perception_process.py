@@ -181,7 +181,7 @@ def main() -> None:
 class PerceptionProcess:
     """The parent's handle: start the child, poll its block, reset, stop (a ``PerceptionWorker``)."""
 
-    START_TIMEOUT_S = 60.0  # importing OpenCV on a loaded machine (start-up, before torque)
+    START_TIMEOUT_S = 120.0  # importing OpenCV and filterpy on a loaded machine (before torque)
     STOP_TIMEOUT_S = 5.0
 
     def __init__(self, job: PerceptionJob) -> None:
