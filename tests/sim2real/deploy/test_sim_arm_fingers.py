@@ -6,11 +6,8 @@ cube, and the next one starts with a home that drops it. The finger actuator's l
 
 from __future__ import annotations
 
-import logging
-
 import mujoco
 import numpy as np
-import pytest
 
 from hardware.spec import ArmSpec
 from sim2real.deploy.loop import LoopConfig
@@ -22,19 +19,19 @@ from sim2real.scene_names import FINGER_JOINTS
 from .conftest import pick_policy
 
 
-def test_lockstep_sim_homes_after_each_grasp(
-    spec: ArmSpec, pick_io: PolicyIO, caplog: pytest.LogCaptureFixture
-) -> None:
+def test_lockstep_sim_homes_after_each_grasp(spec: ArmSpec, pick_io: PolicyIO) -> None:
+    """Before the fix the first home after a grasp failed, and so did the loop's second try
+    after clearing the table: run_policy raised "did not reach the pose: gripper stopped ...".
+    (``move_to`` judges "stopped" on the wall clock; a stalled machine may make the loop clear
+    the table and home again, which it survives: no assertion on that path.)"""
     b, d = pick_io.builder, pick_io.decoder
-    with caplog.at_level(logging.WARNING):
-        result = run_policy(
-            pick_policy(spec, b, d), pick_io, spec,
-            DeployOptions(backend="sim", sim_clock="lockstep"), LoopConfig(episodes=3),
-        )  # fmt: skip
+    result = run_policy(
+        pick_policy(spec, b, d), pick_io, spec,
+        DeployOptions(backend="sim", sim_clock="lockstep"), LoopConfig(episodes=3),
+    )  # fmt: skip
     assert result.stopped_early is None
     assert len(result.episodes) == 3
     assert all(e.figures["grasped_ever"] for e in result.episodes), result.summary()
-    assert not [r for r in caplog.records if "home failed" in r.getMessage()]
 
 
 def _finger_speed(arm: SimArm) -> float:
