@@ -13,6 +13,8 @@ from sim2real.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from sim2real.finetune.defaults import LEARNER_DEFAULTS
+
     parser.add_argument("policy", help="a run directory (DDPG/TD3/SAC) or a shipped policy name")
     parser.add_argument("--backend", default="mock", help="mock | serial (default: mock)")
     parser.add_argument(
@@ -41,8 +43,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="human-in-the-loop keys on the terminal (default: when stdin is a terminal)",
     )  # fmt: skip
     parser.add_argument("--checkpoint-every", type=int, default=1, help="episodes")
-    parser.add_argument("--learning-starts", type=int, default=200, help="online steps first")
-    parser.add_argument("--utd", type=float, default=1.0, help="gradient steps per env step")
+    parser.add_argument(
+        "--learning-starts", type=int, default=LEARNER_DEFAULTS["learning_starts"],
+        help="online steps before the first gradient step",
+    )  # fmt: skip
+    parser.add_argument(
+        "--utd", type=float, default=LEARNER_DEFAULTS["utd"], help="gradient steps per env step"
+    )
+    parser.add_argument(
+        "--actor-starts", type=int, default=LEARNER_DEFAULTS["actor_starts"],
+        help="online steps of critic-only updates before the actor learns",
+    )  # fmt: skip
+    parser.add_argument(
+        "--learning-rate", type=float, default=None, help="actor and critic (default: the source's)"
+    )
     parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
     parser.add_argument("--batch-size", type=int, default=None)
     parser.add_argument("--learner-nice", type=int, default=10)
@@ -104,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         policy=args.policy, out=out, deploy=opts, minutes=args.minutes, algo=args.algo,
         mix_sim_buffer=args.mix_sim_buffer, sim_buffer_steps=args.sim_buffer_steps,
         resume=args.resume, keys=args.keys, checkpoint_every=args.checkpoint_every,
-        learning_starts=args.learning_starts, utd=args.utd, publish_every=args.publish_every,
+        learning_starts=args.learning_starts, utd=args.utd, actor_starts=args.actor_starts,
+        learning_rate=args.learning_rate, publish_every=args.publish_every,
         batch_size=args.batch_size, learner_nice=args.learner_nice,
         success_window=args.success_window, eval_every_min=args.eval_every,
         eval_episodes=args.eval_episodes, max_episodes=args.max_episodes, seed=args.seed,

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
+import math
 import os
 import queue
 import signal
@@ -69,7 +70,34 @@ class LearnerConfig:
     nice: int = 10
     seed: int = 0
     sim_buffer: SimBufferConfig | None = None
+    # critic warm-up: online transitions before the actor's first update (the critic first
+    # fits the new plant's returns; an actor following a miscalibrated critic degrades first)
+    actor_starts: int = 0
+    learning_rate: float | None = None  # None: the source run's
+    action_rate_penalty: float = 0.0  # the source run's training shaping (sim buffer rewards)
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+class RewardShaper:
+    """The source run's training-only action-rate penalty, ``-coef * ||a_t - a_{t-1}||^2`` on the
+    normalised actions the policy chose (``train.wrappers.ActionRatePenalty``): the critic learned
+    its returns with it, so the online rewards it learns from carry it too. ``reset`` at every
+    episode start (the first step's previous action is zero, as in training)."""
+
+    def __init__(self, coef: float) -> None:
+        if not (math.isfinite(coef) and coef >= 0):
+            raise LearnerError(f"action-rate penalty {coef!r} must be a number >= 0")
+        self.coef = float(coef)
+        self._prev: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._prev = None
+
+    def __call__(self, reward: float, action: np.ndarray) -> float:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        prev = np.zeros_like(a) if self._prev is None else self._prev
+        self._prev = a
+        return float(reward) - self.coef * float(np.sum((a - prev) ** 2))
 
 
 # ---- the learner's side ------------------------------------------------------------------------
@@ -144,6 +172,12 @@ class Learner:
             model.policy_delay, model.target_policy_noise, model.target_noise_clip = 2, 0.2, 0.5
         model.set_logger(Logger(folder=None, output_formats=[]))
         model.set_random_seed(cfg.seed)
+        if cfg.learning_rate is not None:
+            lr = float(cfg.learning_rate)
+            model.learning_rate = lr
+            model.lr_schedule = lambda _progress: lr
+        self.policy_delay = int(getattr(model, "policy_delay", 1))
+        self.start_updates = int(model._n_updates)
         self.batch_size = int(cfg.batch_size or model.batch_size)
         buffer_cls = _mixed_buffer_class()
         self.buffer = buffer_cls(
@@ -179,7 +213,27 @@ class Learner:
         )  # fmt: skip
 
     def train(self, steps: int) -> None:
-        self.model.train(gradient_steps=steps, batch_size=self.batch_size)
+        """``steps`` gradient steps; before ``actor_starts`` online transitions, the critic's
+        only (its target follows by Polyak averaging, the actor and its target stay put)."""
+        model = self.model
+        if self.buffer.size() >= self.cfg.actor_starts or not hasattr(model, "policy_delay"):
+            model.policy_delay = self.policy_delay
+            model.train(gradient_steps=steps, batch_size=self.batch_size)
+            return
+        from stable_baselines3.common.utils import polyak_update
+
+        for _ in range(steps):
+            # an actor update happens when _n_updates % policy_delay == 0: never, here
+            model.policy_delay = int(model._n_updates) + 2
+            model.train(gradient_steps=1, batch_size=self.batch_size)
+            polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
+        model.policy_delay = self.policy_delay
+
+    @staticmethod
+    def action_rate_penalty(config: dict[str, Any]) -> float:
+        """The source run's training-only reward shaping (``train.action_rate_penalty``): the
+        critic learned returns with it, so online rewards must carry it too."""
+        return float(dict(config.get("train") or {}).get("action_rate_penalty", 0.0) or 0.0)
 
     def save(self, model_paths: list[str], replay_path: str) -> None:
         from hardware.atomic import atomic_write_bytes
@@ -231,6 +285,7 @@ class Learner:
             sc.steps, self.model.observation_space, self.model.action_space, device="cpu",
             n_envs=1, handle_timeout_termination=False,
         )  # fmt: skip
+        shaper = RewardShaper(self.cfg.action_rate_penalty)
         norm = self.normalizer or (lambda o: np.asarray(o, np.float32))
         t0 = time.monotonic()
         try:
@@ -238,14 +293,16 @@ class Learner:
             for _ in range(sc.steps):
                 action = actor.explore(obs, rng)
                 nxt, reward, terminated, truncated, _ = env.step(action)
+                shaped = shaper(float(reward), action)
                 sim.add(
                     norm(obs)[None], norm(nxt)[None], action[None],
-                    np.asarray([reward], np.float32), np.asarray([float(terminated)], np.float32),
+                    np.asarray([shaped], np.float32), np.asarray([float(terminated)], np.float32),
                     [{}],
                 )  # fmt: skip
                 obs = nxt
                 if terminated or truncated:
                     obs, _ = env.reset()
+                    shaper.reset()
         finally:
             env.close()
         log.info("sim buffer: %d transitions in %.1f s", sim.size(), time.monotonic() - t0)

@@ -33,6 +33,7 @@ from hardware.spec import ArmSpec
 from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
 from sim2real.finetune.checkpoint import ALGOS, FinetuneDir, FinetuneSource, resolve
+from sim2real.finetune.defaults import LEARNER_DEFAULTS
 
 log = logging.getLogger(__name__)
 
@@ -54,8 +55,12 @@ class FinetuneOptions:
     resume: bool = False
     keys: bool | None = None  # None: when stdin is a terminal
     checkpoint_every: int = 1  # episodes
-    learning_starts: int = 200  # online transitions before the first gradient step
-    utd: float = 1.0  # gradient steps per online transition
+    learning_starts: int = int(
+        LEARNER_DEFAULTS["learning_starts"]
+    )  # before the first gradient step
+    utd: float = float(LEARNER_DEFAULTS["utd"])  # gradient steps per online transition
+    actor_starts: int = int(LEARNER_DEFAULTS["actor_starts"])  # online transitions: critic only
+    learning_rate: float | None = None  # None: the source run's
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
     learner_nice: int = 10
@@ -77,6 +82,12 @@ class FinetuneOptions:
         for name in ("checkpoint_every", "publish_every", "eval_episodes", "success_window"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"--{name.replace('_', '-')} must be >= 1")
+        if self.actor_starts < 0:
+            raise ConfigError(f"--actor-starts must be >= 0, got {self.actor_starts}")
+        if self.learning_rate is not None and not (
+            math.isfinite(self.learning_rate) and 0 < self.learning_rate < 1
+        ):
+            raise ConfigError(f"--learning-rate must be in (0, 1), got {self.learning_rate!r}")
         if self.learning_starts < 1 or self.sim_buffer_steps < 1:
             raise ConfigError("--learning-starts and --sim-buffer-steps must be >= 1")
         if not (math.isfinite(self.utd) and 0 < self.utd <= 64):
@@ -144,7 +155,7 @@ class _Run:
 
     # ---- the learner ------------------------------------------------------------------------
     def learner_config(self) -> Any:
-        from sim2real.finetune.learner import LearnerConfig, SimBufferConfig
+        from sim2real.finetune.learner import Learner, LearnerConfig, SimBufferConfig
 
         fo, src = self.fo, self.src
         model_zip, replay = str(src.model_zip), None
@@ -172,6 +183,9 @@ class _Run:
             batch_size=fo.batch_size,
             learning_starts=fo.learning_starts,
             utd=fo.utd,
+            actor_starts=fo.actor_starts,
+            learning_rate=fo.learning_rate,
+            action_rate_penalty=Learner.action_rate_penalty(src.config),
             publish_every=fo.publish_every,
             nice=fo.learner_nice,
             seed=fo.seed + int(self.state["segments"]),
@@ -288,6 +302,9 @@ class _Run:
         fo, st = self.fo, self.state
         budget_s = fo.minutes * 60.0
         rng = np.random.default_rng(fo.seed + 104729 * int(st["segments"]))
+        from sim2real.finetune.learner import Learner, RewardShaper
+
+        shaper = RewardShaper(Learner.action_rate_penalty(self.src.config))
         norm = normalizer or (lambda o: np.asarray(o, np.float32))
         objects = env.io.contract.objects
         next_eval = None
@@ -329,6 +346,7 @@ class _Run:
                 truncated = terminated = False
                 step = 0
                 info: dict[str, Any] = {}
+                shaper.reset()
                 try:
                     obs, _ = env.reset(seed=fo.seed + episode)
                 except HardwareError as exc:
@@ -346,7 +364,10 @@ class _Run:
                     except HardwareError as exc:
                         self._recover(exc, env, t0)
                         break
-                    learner.send(norm(obs), action, reward, norm(nxt), terminated)
+                    # the transition as the env saw it: this period's observation, the action
+                    # the policy chose (the safety filter acts inside the arm, as in training),
+                    # the reward with the source run's training shaping, the next observation
+                    learner.send(norm(obs), action, shaper(reward, action), norm(nxt), terminated)
                     st["env_steps"] += 1
                     rows.add(
                         t_s=t_s, episode=episode, step=step, obs=obs, action=action,

@@ -91,6 +91,28 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
     assert first["safety"]["nonfinite"] == 0
     assert first["safety"]["commands"] >= steps
 
+    # the learner trained on what the env saw: each transition is this period's observation
+    # (normalised as the source run did), the action the policy chose, the reward with the
+    # source's action-rate shaping, and the next period's observation (no off-by-one)
+    from sim2real.finetune.actor import ObsNormalizer
+    from sim2real.finetune.checkpoint import FinetuneDir, resolve
+
+    state = json.loads((out / "finetune.json").read_text())
+    model_ckpt = FinetuneDir(out).run.checkpoint_dir / state["checkpoint"]
+    with np.load(model_ckpt.with_name(model_ckpt.stem + ".replay.npz")) as rep:
+        replay = {k: rep[k] for k in ("obs", "next_obs", "actions", "rewards", "dones")}
+    src = resolve("reach-ddpg", None)
+    norm = ObsNormalizer.from_stats(src.obs_stats)
+    assert norm is not None and len(replay["obs"]) == steps
+    assert np.allclose(replay["obs"], np.stack([norm(o) for o in log["obs"]]), atol=1e-6)
+    assert np.array_equal(replay["next_obs"][:-1], replay["obs"][1:])
+    assert np.allclose(replay["actions"], log["action"], atol=1e-7)
+    acts = np.asarray(log["action"], dtype=np.float64)
+    prev = np.vstack([np.zeros((1, acts.shape[1])), acts[:-1]])
+    shaped = log["reward"] - 0.5 * np.sum((acts - prev) ** 2, axis=1)
+    assert np.allclose(replay["rewards"], shaped, atol=1e-5)
+    assert not np.any(replay["dones"])  # reach never terminates: truncation bootstraps
+
     # resume continues the counters (steps and episodes go on, updates too), not restart
     second = finetune(_options(out, resume=True), spec)
     assert second["episodes"] == 2 and second["episodes_this_run"] == 1

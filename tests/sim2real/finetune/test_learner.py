@@ -101,3 +101,77 @@ def test_td3_continues_a_ddpg_checkpoint_and_batches_mix_sim_and_online_half_hal
 @pytest.mark.parametrize("bad", [{"norm_obs": False}, None])
 def test_no_normaliser_without_normalised_observations(bad: dict[str, object] | None) -> None:
     assert ObsNormalizer.from_stats(bad) is None
+
+
+def test_critic_warm_up_trains_the_critic_and_leaves_the_actor_until_actor_starts() -> None:
+    zip_path, stats = _ddpg_source()
+    cfg = LearnerConfig(
+        algo="ddpg",
+        source_algo="ddpg",
+        model_zip=str(zip_path),
+        obs_stats=stats["vecnormalize"],  # type: ignore[arg-type]
+        batch_size=16,
+        actor_starts=60,
+    )
+    learner = Learner(cfg)
+    model = learner.model
+    actor0 = learner.flat_actor()
+    actor_target0 = flatten([p.detach().numpy().copy() for p in model.actor_target.parameters()])
+    critic0 = flatten([p.detach().numpy().copy() for p in model.critic.parameters()])
+    target0 = flatten([p.detach().numpy().copy() for p in model.critic_target.parameters()])
+    rng = np.random.default_rng(3)
+
+    def add(n: int) -> None:
+        for _ in range(n):
+            obs, nxt = rng.normal(size=(2, 24)).astype(np.float32)
+            learner.add(obs, rng.uniform(-1, 1, 3).astype(np.float32), -5.0, nxt, False)
+
+    add(40)
+    learner.train(5)
+    assert learner.updates - learner.start_updates == 5
+    assert np.array_equal(learner.flat_actor(), actor0)  # the actor waits for the critic
+    after = [p.detach().numpy() for p in model.actor_target.parameters()]
+    assert np.array_equal(flatten(after), actor_target0)
+    assert not np.allclose(
+        flatten([p.detach().numpy() for p in model.critic.parameters()]), critic0
+    )
+    assert not np.allclose(
+        flatten([p.detach().numpy() for p in model.critic_target.parameters()]), target0
+    )  # its target follows (Polyak)
+    assert model.policy_delay == learner.policy_delay
+    add(20)  # 60 online transitions: the actor learns from here on
+    learner.train(2)
+    assert not np.allclose(learner.flat_actor(), actor0)
+
+
+def test_reward_shaper_gives_the_training_wrappers_rewards(spec: ArmSpec) -> None:
+    """The online reward is the one the critic learned: the env's reward with the source run's
+    action-rate penalty, step for step the same as ``ActionRatePenalty`` over the same env."""
+    import sim2real.envs as envs
+    from sim2real.finetune.learner import RewardShaper
+    from sim2real.train.wrappers import ActionRatePenalty
+
+    _, stats = _ddpg_source()
+    config = stats["config"]
+    assert isinstance(config, dict)
+    coef = Learner.action_rate_penalty(config)
+    assert coef == 0.5  # reach-ddpg was trained with it
+    kwargs = dict(config.get("env_kwargs", {}))
+    plain = envs.make(str(config["env_id"]), spec=spec, **kwargs)
+    wrapped = ActionRatePenalty(envs.make(str(config["env_id"]), spec=spec, **kwargs), coef)
+    shaper = RewardShaper(coef)
+    rng = np.random.default_rng(4)
+    for episode in range(2):
+        plain.reset(seed=episode)
+        wrapped.reset(seed=episode)
+        shaper.reset()
+        for _ in range(8):
+            a = rng.uniform(-1, 1, 3).astype(np.float32)
+            _, r, *_ = plain.step(a)
+            _, want, *_ = wrapped.step(a)
+            assert shaper(r, a) == pytest.approx(want, abs=1e-12)
+            assert want < r  # the penalty is there
+    plain.close()
+    wrapped.close()
+    with pytest.raises(Exception, match="-1"):
+        RewardShaper(-1.0)
