@@ -93,10 +93,13 @@ class ModelSnapshot:
     def __init__(self, model: mujoco.MjModel) -> None:
         self._model = model
         self.values: dict[str, np.ndarray] = {f: getattr(model, f).copy() for f in TOUCHED_FIELDS}
+        # MjModel's arrays are views of its buffers, valid while the model lives: fetched once
+        # (a reset restores every episode, and each attribute fetch builds a new array object)
+        self._pairs = [(getattr(model, f), v) for f, v in self.values.items()]
 
     def __getitem__(self, field: str) -> np.ndarray:
         return self.values[field]
 
     def restore(self) -> None:
-        for field, value in self.values.items():
-            np.copyto(getattr(self._model, field), value)
+        for view, value in self._pairs:
+            np.copyto(view, value)
