@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import weakref
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import mujoco
 import numpy as np
@@ -16,7 +17,14 @@ from sim2real.noise import NoiseBuffer
 # The one alias for it: every DR module imports this.
 Params = dict[str, Any]
 
-__all__ = ["ModelIds", "ModelSnapshot", "NoiseBuffer", "Params"]  # NoiseBuffer: sensing.py
+__all__ = [  # NoiseBuffer: sensing.py
+    "ModelIds",
+    "ModelSnapshot",
+    "NoiseBuffer",
+    "Params",
+    "PlanCache",
+    "as_index",
+]
 
 # Every MjModel field any DR category writes. restore() copies exactly these back.
 TOUCHED_FIELDS: tuple[str, ...] = (
@@ -103,3 +111,32 @@ class ModelSnapshot:
     def restore(self) -> None:
         for view, value in self._pairs:
             np.copyto(view, value)
+
+
+def as_index(ids: np.ndarray) -> slice | np.ndarray:
+    """A run of consecutive ids as a slice (basic indexing: a view, cheaper to write through
+    than a fancy index), other ids unchanged. The same elements either way."""
+    ids = np.asarray(ids, dtype=np.intp)
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
+
+
+T = TypeVar("T")
+
+
+class PlanCache(Generic[T]):
+    """An applier's per-model plan (ids as slices, nominal rows, model views), built once per
+    snapshot: a reset applies DR every episode, and per-call lookups were most of its cost."""
+
+    def __init__(self, build: Callable[[mujoco.MjModel, ModelSnapshot, ModelIds], T]) -> None:
+        self._build = build
+        self._plans: weakref.WeakKeyDictionary[
+            ModelSnapshot, tuple[mujoco.MjModel, ModelIds, T]
+        ] = weakref.WeakKeyDictionary()
+
+    def get(self, model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds) -> T:
+        entry = self._plans.get(nominal)
+        if entry is None or entry[0] is not model or entry[1] is not ids:
+            entry = self._plans[nominal] = (model, ids, self._build(model, nominal, ids))
+        return entry[2]

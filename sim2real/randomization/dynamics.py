@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
 
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params
+from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache, as_index
 from sim2real.randomization.config import Range
 
 
@@ -23,7 +25,9 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
     }
 
 
-def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
+def apply_reference(
+    model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params
+) -> None:
     """Write scaled nominal values; never compounds, so repeated episodes do not drift."""
     b, d, a = ids.arm_bodies, ids.arm_dofs, ids.servo_actuators
     mass = np.asarray(params["link_mass_scale"])
@@ -37,3 +41,66 @@ def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: 
     model.actuator_gainprm[a, 0] = nominal["actuator_gainprm"][a, 0] * gain
     model.actuator_biasprm[a, 1] = nominal["actuator_biasprm"][a, 1] * gain
     model.actuator_biasprm[a, 2] = nominal["actuator_biasprm"][a, 2] * gain
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """``apply_reference``'s ids, nominal rows and model arrays, resolved once per model."""
+
+    b: Any  # slice or index array (``as_index``)
+    d: Any
+    a: Any
+    mass: np.ndarray
+    inertia: np.ndarray
+    damping: np.ndarray
+    armature: np.ndarray
+    gain: np.ndarray  # (n_a,) gainprm[:, 0]
+    bias: np.ndarray  # (n_a, 2) biasprm[:, 1:3]
+    body_mass: np.ndarray  # the model's own arrays (views of its buffers)
+    body_inertia: np.ndarray
+    dof_damping: np.ndarray
+    dof_frictionloss: np.ndarray
+    dof_armature: np.ndarray
+    gainprm: np.ndarray
+    biasprm: np.ndarray
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds) -> _Plan:
+        b, d, a = ids.arm_bodies, ids.arm_dofs, ids.servo_actuators
+        return cls(
+            b=as_index(b),
+            d=as_index(d),
+            a=as_index(a),
+            mass=nominal["body_mass"][b],
+            inertia=nominal["body_inertia"][b],
+            damping=nominal["dof_damping"][d],
+            armature=nominal["dof_armature"][d],
+            gain=nominal["actuator_gainprm"][a, 0],
+            bias=nominal["actuator_biasprm"][a, 1:3],
+            body_mass=model.body_mass,
+            body_inertia=model.body_inertia,
+            dof_damping=model.dof_damping,
+            dof_frictionloss=model.dof_frictionloss,
+            dof_armature=model.dof_armature,
+            gainprm=model.actuator_gainprm,
+            biasprm=model.actuator_biasprm,
+        )
+
+
+_PLANS = PlanCache(_Plan.of)
+
+
+def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
+    """``apply_reference``'s products on the same values (the same bits), written through a
+    plan resolved once per model (``tests/sim2real/randomization/test_appliers.py``)."""
+    p = _PLANS.get(model, nominal, ids)
+    mass = np.asarray(params["link_mass_scale"])
+    p.body_mass[p.b] = p.mass * mass
+    p.body_inertia[p.b] = p.inertia * mass[:, None]
+    p.dof_damping[p.d] = p.damping * params["joint_damping_scale"]
+    p.dof_frictionloss[p.d] = params["joint_frictionloss_nm"]
+    p.dof_armature[p.d] = p.armature * params["armature_scale"]
+    gain = np.asarray(params["actuator_gain_scale"])
+    # A position servo is gain kp and bias -kp*q - kv*qdot: scale both to keep it a servo.
+    p.gainprm[p.a, 0] = p.gain * gain
+    p.biasprm[p.a, 1:3] = p.bias * gain[:, None]

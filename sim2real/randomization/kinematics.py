@@ -24,12 +24,13 @@ import math
 import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from sim2real import model as names
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params
+from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache, as_index
 from sim2real.randomization.config import Range
 
 # Bodies whose parent-frame position is a link length: base height moves the upper arm's origin
@@ -165,7 +166,9 @@ class _Plan:
 _PLANS: weakref.WeakKeyDictionary[ModelSnapshot, _Plan] = weakref.WeakKeyDictionary()
 
 
-def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
+def apply_reference(
+    model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params
+) -> None:
     """Write nominal + deltas (never compounds); the caller restored nominal before. A model
     without the arm3 twin's linkage (the Kuka grasp scene) has no hobby-arm geometry to vary.
 
@@ -215,3 +218,103 @@ def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: 
         model.body_pos[k.tool_bodies] = p.tool_body_pos + shift
     if k.palm_geom >= 0:
         model.geom_pos[k.palm_geom] = p.palm_pos + shift
+
+
+@dataclass(frozen=True)
+class _Views:
+    """``apply_reference``'s lookups done once per model: the ids, the plan, the model's arrays
+    (views of its buffers) and the rows the quaternion calls write and read."""
+
+    k: _Ids
+    p: _Plan
+    geoms: Any  # slice or index array (``as_index``)
+    ipos_bodies: np.ndarray
+    quat_out: tuple[np.ndarray, ...]  # body_quat rows: the joint bodies, then the wrist
+    quat_in: tuple[np.ndarray, ...]  # their nominal rows
+    axes: tuple[np.ndarray, ...]
+    turn: np.ndarray  # scratch (4,)
+    body_pos: np.ndarray
+    geom_pos: np.ndarray
+    geom_size: np.ndarray
+    geom_rbound: np.ndarray
+    geom_aabb: np.ndarray
+    body_ipos: np.ndarray
+    site_pos: np.ndarray
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds) -> _Views | None:
+        k = _ids_of(model, ids)
+        if k is None:
+            return None
+        p = _PLANS.get(nominal)
+        if p is None:
+            p = _PLANS[nominal] = _Plan.of(model, nominal, k)
+        bodies = np.append(k.joint_bodies, k.wrist_body)
+        quat = model.body_quat
+        return cls(
+            k=k,
+            p=p,
+            geoms=as_index(p.geoms),
+            ipos_bodies=k.joint_bodies[p.ipos_rows],
+            quat_out=tuple(quat[b] for b in bodies),
+            quat_in=tuple(p.quats[i] for i in range(len(bodies))),
+            axes=tuple(p.axes[i] for i in range(len(bodies))),
+            turn=np.zeros(4),
+            body_pos=model.body_pos,
+            geom_pos=model.geom_pos,
+            geom_size=model.geom_size,
+            geom_rbound=model.geom_rbound,
+            geom_aabb=model.geom_aabb,
+            body_ipos=model.body_ipos,
+            site_pos=model.site_pos,
+        )
+
+
+_VIEWS = PlanCache(_Views.of)
+
+
+def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
+    """``apply_reference``'s operations on the same values (the same bits), written through
+    views resolved once per model (``tests/sim2real/randomization/test_appliers.py``)."""
+    v = _VIEWS.get(model, nominal, ids)
+    if v is None:
+        return
+    k, p = v.k, v.p
+    links = np.asarray(params["link_length_delta_m"], dtype=float)
+    offsets = np.asarray(params["joint_offset_rad"], dtype=float)
+    tool = np.asarray(params["tool_offset_delta_m"], dtype=float)
+
+    v.body_pos[k.link_bodies, _LINK_AXES] = p.link_pos + links
+    half = np.empty(4)
+    half[:3] = links
+    half[3] = tool[0]
+    half *= 0.5  # the three links, then the wrist by tool forward
+    v.geom_pos[v.geoms] = p.centre + p.direction * half[:, None]
+    size = p.size.copy()
+    size[_ROWS, p.along] += half
+    v.geom_size[v.geoms] = size
+    rbound = size[:, 0] + size[:, 1]
+    for i in p.box_rows:
+        rbound[i] = _norm(size[i])
+    v.geom_rbound[v.geoms] = rbound
+    aabb = p.aabb.copy()
+    aabb[_ROWS, p.aabb_at] += half
+    v.geom_aabb[v.geoms] = aabb
+    if len(p.ipos_rows):
+        v.body_ipos[v.ipos_bodies] = p.ipos + p.ipos_half_unit * links[p.ipos_rows, None]
+
+    # level gripper: the wrist undoes the pitch offsets its tendon cannot see
+    level = -float(k.pitch_signs @ offsets[1:3])
+    turn = v.turn
+    for out, nominal_quat, axis, angle in zip(
+        v.quat_out, v.quat_in, v.axes, (*offsets.tolist(), level), strict=True
+    ):
+        mujoco.mju_axisAngle2Quat(turn, axis, angle)
+        mujoco.mju_mulQuat(out, nominal_quat, turn)
+
+    shift = np.array([tool[0], 0.0, -tool[1]])  # forward is +x, down is -z of the level wrist
+    v.site_pos[k.tool_site] = p.site_pos + shift
+    if len(k.tool_bodies):
+        v.body_pos[k.tool_bodies] = p.tool_body_pos + shift
+    if k.palm_geom >= 0:
+        v.geom_pos[k.palm_geom] = p.palm_pos + shift

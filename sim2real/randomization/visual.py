@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
 
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params
+from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache, as_index
 from sim2real.randomization.config import Range
 
 
@@ -31,7 +33,9 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
     }
 
 
-def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
+def apply_reference(
+    model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params
+) -> None:
     lights, geoms, cams = ids.lights, ids.colour_geoms, ids.cameras
     scale = np.reshape(params["light_diffuse_scale"], (-1, 1))
     # np.minimum(np.maximum(...)) is np.clip's arithmetic at a third of its cost on small arrays
@@ -43,3 +47,59 @@ def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: 
     model.geom_rgba[geoms] = rgba
     model.cam_pos[cams] = nominal["cam_pos"][cams] + params["camera_pos_offset_m"]
     model.cam_fovy[cams] = nominal["cam_fovy"][cams] + params["camera_fovy_offset_deg"]
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """``apply_reference``'s ids, nominal rows and model arrays, resolved once per model."""
+
+    lights: Any  # slice or index array (``as_index``)
+    geoms: Any
+    cams: Any
+    diffuse: np.ndarray
+    light_pos: np.ndarray
+    rgba: np.ndarray
+    cam_pos: np.ndarray
+    fovy: np.ndarray
+    model_diffuse: np.ndarray  # the model's own arrays (views of its buffers)
+    model_light_pos: np.ndarray
+    model_rgba: np.ndarray
+    model_cam_pos: np.ndarray
+    model_fovy: np.ndarray
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds) -> _Plan:
+        lights, geoms, cams = ids.lights, ids.colour_geoms, ids.cameras
+        return cls(
+            lights=as_index(lights),
+            geoms=as_index(geoms),
+            cams=as_index(cams),
+            diffuse=nominal["light_diffuse"][lights],
+            light_pos=nominal["light_pos"][lights],
+            rgba=nominal["geom_rgba"][geoms],
+            cam_pos=nominal["cam_pos"][cams],
+            fovy=nominal["cam_fovy"][cams],
+            model_diffuse=model.light_diffuse,
+            model_light_pos=model.light_pos,
+            model_rgba=model.geom_rgba,
+            model_cam_pos=model.cam_pos,
+            model_fovy=model.cam_fovy,
+        )
+
+
+_PLANS = PlanCache(_Plan.of)
+
+
+def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
+    """``apply_reference``'s arithmetic on the same values (the same bits), written through a
+    plan resolved once per model (``tests/sim2real/randomization/test_appliers.py``)."""
+    p = _PLANS.get(model, nominal, ids)
+    scale = np.reshape(params["light_diffuse_scale"], (-1, 1))
+    # np.minimum(np.maximum(...)) is np.clip's arithmetic at a third of its cost on small arrays
+    p.model_diffuse[p.lights] = np.minimum(np.maximum(p.diffuse * scale, 0.0), 1.0)
+    p.model_light_pos[p.lights] = p.light_pos + params["light_pos_offset_m"]
+    rgba = p.rgba.copy()
+    rgba[:, :3] = np.minimum(np.maximum(rgba[:, :3] + params["rgba_offset"], 0.0), 1.0)
+    p.model_rgba[p.geoms] = rgba
+    p.model_cam_pos[p.cams] = p.cam_pos + params["camera_pos_offset_m"]
+    p.model_fovy[p.cams] = p.fovy + params["camera_fovy_offset_deg"]
