@@ -27,10 +27,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import mujoco
+import numba
 import numpy as np
 
 from sim2real import model as names
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache, as_index
+from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache
 from sim2real.randomization.config import Range
 
 # Bodies whose parent-frame position is a link length: base height moves the upper arm's origin
@@ -220,6 +221,79 @@ def apply_reference(
         model.geom_pos[k.palm_geom] = p.palm_pos + shift
 
 
+def _jit(fn: Any) -> Any:
+    try:
+        return numba.njit(cache=True)(fn)
+    except RuntimeError:  # no writable cache directory: compile in this process
+        return numba.njit(cache=False)(fn)
+
+
+@_jit
+def _write_geometry(
+    links: np.ndarray,
+    tool: np.ndarray,
+    link_bodies: np.ndarray,
+    link_axes: np.ndarray,
+    link_pos: np.ndarray,
+    geoms: np.ndarray,
+    centre: np.ndarray,
+    direction: np.ndarray,
+    size0: np.ndarray,
+    along: np.ndarray,
+    aabb0: np.ndarray,
+    aabb_at: np.ndarray,
+    ipos_bodies: np.ndarray,
+    ipos_rows: np.ndarray,
+    ipos0: np.ndarray,
+    ipos_half_unit: np.ndarray,
+    site: int,
+    site_pos0: np.ndarray,
+    tool_bodies: np.ndarray,
+    tool_body_pos0: np.ndarray,
+    palm_geom: int,
+    palm_pos0: np.ndarray,
+    body_pos: np.ndarray,
+    geom_pos: np.ndarray,
+    geom_size: np.ndarray,
+    geom_rbound: np.ndarray,
+    geom_aabb: np.ndarray,
+    body_ipos: np.ndarray,
+    site_pos: np.ndarray,
+) -> None:
+    """``apply_reference``'s element operations in its order, one call (each is a single
+    IEEE add or multiply, so the bits are numpy's), but the boxes' bounding radii (a BLAS
+    dot) and the quaternions (MuJoCo's own functions), which stay with the caller."""
+    for i in range(3):
+        body_pos[link_bodies[i], link_axes[i]] = link_pos[i] + links[i]
+    half = np.empty(4)
+    for i in range(3):
+        half[i] = 0.5 * links[i]
+    half[3] = 0.5 * tool[0]
+    for j in range(4):
+        g = geoms[j]
+        for c in range(3):
+            geom_pos[g, c] = centre[j, c] + direction[j, c] * half[j]
+            geom_size[g, c] = size0[j, c]
+        geom_size[g, along[j]] += half[j]
+        geom_rbound[g] = geom_size[g, 0] + geom_size[g, 1]
+        for c in range(6):
+            geom_aabb[g, c] = aabb0[j, c]
+        geom_aabb[g, aabb_at[j]] += half[j]
+    for m in range(len(ipos_bodies)):
+        for c in range(3):
+            body_ipos[ipos_bodies[m], c] = ipos0[m, c] + ipos_half_unit[m, c] * links[ipos_rows[m]]
+    shift = np.empty(3)
+    shift[0], shift[1], shift[2] = tool[0], 0.0, -tool[1]
+    for c in range(3):
+        site_pos[site, c] = site_pos0[c] + shift[c]
+    for t in range(len(tool_bodies)):
+        for c in range(3):
+            body_pos[tool_bodies[t], c] = tool_body_pos0[t, c] + shift[c]
+    if palm_geom >= 0:
+        for c in range(3):
+            geom_pos[palm_geom, c] = palm_pos0[c] + shift[c]
+
+
 @dataclass(frozen=True)
 class _Views:
     """``apply_reference``'s lookups done once per model: the ids, the plan, the model's arrays
@@ -227,19 +301,14 @@ class _Views:
 
     k: _Ids
     p: _Plan
-    geoms: Any  # slice or index array (``as_index``)
-    ipos_bodies: np.ndarray
+    geometry: tuple[Any, ...]  # ``_write_geometry``'s arguments after the parameters
+    box_geoms: tuple[int, ...]  # geoms whose bounding radius is |size|
     quat_out: tuple[np.ndarray, ...]  # body_quat rows: the joint bodies, then the wrist
     quat_in: tuple[np.ndarray, ...]  # their nominal rows
     axes: tuple[np.ndarray, ...]
     turn: np.ndarray  # scratch (4,)
-    body_pos: np.ndarray
-    geom_pos: np.ndarray
     geom_size: np.ndarray
     geom_rbound: np.ndarray
-    geom_aabb: np.ndarray
-    body_ipos: np.ndarray
-    site_pos: np.ndarray
 
     @classmethod
     def of(cls, model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds) -> _Views | None:
@@ -251,22 +320,47 @@ class _Views:
             p = _PLANS[nominal] = _Plan.of(model, nominal, k)
         bodies = np.append(k.joint_bodies, k.wrist_body)
         quat = model.body_quat
+        i64 = np.int64
+        geometry = (
+            k.link_bodies.astype(i64),
+            np.array(_LINK_AXES, dtype=i64),
+            np.ascontiguousarray(p.link_pos, dtype=float),
+            p.geoms.astype(i64),
+            p.centre,
+            p.direction,
+            p.size,
+            p.along.astype(i64),
+            p.aabb,
+            p.aabb_at.astype(i64),
+            k.joint_bodies[p.ipos_rows].astype(i64),
+            p.ipos_rows.astype(i64),
+            p.ipos.reshape(-1, 3),
+            p.ipos_half_unit.reshape(-1, 3),
+            int(k.tool_site),
+            p.site_pos,
+            k.tool_bodies.astype(i64),
+            p.tool_body_pos.reshape(-1, 3),
+            int(k.palm_geom),
+            p.palm_pos,
+            model.body_pos,
+            model.geom_pos,
+            model.geom_size,
+            model.geom_rbound,
+            model.geom_aabb,
+            model.body_ipos,
+            model.site_pos,
+        )
         return cls(
             k=k,
             p=p,
-            geoms=as_index(p.geoms),
-            ipos_bodies=k.joint_bodies[p.ipos_rows],
+            geometry=geometry,
+            box_geoms=tuple(int(p.geoms[i]) for i in p.box_rows),
             quat_out=tuple(quat[b] for b in bodies),
             quat_in=tuple(p.quats[i] for i in range(len(bodies))),
             axes=tuple(p.axes[i] for i in range(len(bodies))),
             turn=np.zeros(4),
-            body_pos=model.body_pos,
-            geom_pos=model.geom_pos,
             geom_size=model.geom_size,
             geom_rbound=model.geom_rbound,
-            geom_aabb=model.geom_aabb,
-            body_ipos=model.body_ipos,
-            site_pos=model.site_pos,
         )
 
 
@@ -274,47 +368,26 @@ _VIEWS = PlanCache(_Views.of)
 
 
 def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params) -> None:
-    """``apply_reference``'s operations on the same values (the same bits), written through
-    views resolved once per model (``tests/sim2real/randomization/test_appliers.py``)."""
+    """``apply_reference``'s operations on the same values (the same bits): the geometry in one
+    compiled call through views resolved once per model, the quaternions by MuJoCo's functions
+    as there (``tests/sim2real/randomization/test_appliers.py``)."""
     v = _VIEWS.get(model, nominal, ids)
     if v is None:
         return
-    k, p = v.k, v.p
-    links = np.asarray(params["link_length_delta_m"], dtype=float)
     offsets = np.asarray(params["joint_offset_rad"], dtype=float)
-    tool = np.asarray(params["tool_offset_delta_m"], dtype=float)
-
-    v.body_pos[k.link_bodies, _LINK_AXES] = p.link_pos + links
-    half = np.empty(4)
-    half[:3] = links
-    half[3] = tool[0]
-    half *= 0.5  # the three links, then the wrist by tool forward
-    v.geom_pos[v.geoms] = p.centre + p.direction * half[:, None]
-    size = p.size.copy()
-    size[_ROWS, p.along] += half
-    v.geom_size[v.geoms] = size
-    rbound = size[:, 0] + size[:, 1]
-    for i in p.box_rows:
-        rbound[i] = _norm(size[i])
-    v.geom_rbound[v.geoms] = rbound
-    aabb = p.aabb.copy()
-    aabb[_ROWS, p.aabb_at] += half
-    v.geom_aabb[v.geoms] = aabb
-    if len(p.ipos_rows):
-        v.body_ipos[v.ipos_bodies] = p.ipos + p.ipos_half_unit * links[p.ipos_rows, None]
+    _write_geometry(
+        np.asarray(params["link_length_delta_m"], dtype=float),
+        np.asarray(params["tool_offset_delta_m"], dtype=float),
+        *v.geometry,
+    )
+    for g in v.box_geoms:
+        v.geom_rbound[g] = _norm(v.geom_size[g])
 
     # level gripper: the wrist undoes the pitch offsets its tendon cannot see
-    level = -float(k.pitch_signs @ offsets[1:3])
+    level = -float(v.k.pitch_signs @ offsets[1:3])
     turn = v.turn
     for out, nominal_quat, axis, angle in zip(
         v.quat_out, v.quat_in, v.axes, (*offsets.tolist(), level), strict=True
     ):
         mujoco.mju_axisAngle2Quat(turn, axis, angle)
         mujoco.mju_mulQuat(out, nominal_quat, turn)
-
-    shift = np.array([tool[0], 0.0, -tool[1]])  # forward is +x, down is -z of the level wrist
-    v.site_pos[k.tool_site] = p.site_pos + shift
-    if len(k.tool_bodies):
-        v.body_pos[k.tool_bodies] = p.tool_body_pos + shift
-    if k.palm_geom >= 0:
-        v.geom_pos[k.palm_geom] = p.palm_pos + shift
