@@ -25,6 +25,18 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
     }
 
 
+def direct_keys(ids: ModelIds) -> list[tuple[str, int | None, None]]:
+    """``sample``'s keys in its order, each one ``Range.sample`` of this size (``Category``)."""
+    n_b, n_d, n_a = len(ids.arm_bodies), len(ids.arm_dofs), len(ids.servo_actuators)
+    return [
+        ("link_mass_scale", n_b, None),
+        ("joint_damping_scale", n_d, None),
+        ("joint_frictionloss_nm", n_d, None),
+        ("armature_scale", n_d, None),
+        ("actuator_gain_scale", n_a, None),
+    ]
+
+
 def apply_reference(
     model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: Params
 ) -> None:

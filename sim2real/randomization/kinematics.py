@@ -108,6 +108,15 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
     }
 
 
+def direct_keys(ids: ModelIds) -> list[tuple[str, int | None, None]]:
+    """``sample``'s keys in its order, each one ``Range.sample`` of this size (``Category``)."""
+    return [
+        ("link_length_delta_m", 3, None),
+        ("joint_offset_rad", len(ids.arm_dofs), None),
+        ("tool_offset_delta_m", 2, None),
+    ]
+
+
 @dataclass(frozen=True)
 class _Plan:
     """What ``apply`` writes, with every term that depends on the nominal model alone worked out

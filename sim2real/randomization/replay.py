@@ -77,11 +77,16 @@ class DrawPlan:
         self.n_calls = len(where)
 
     @classmethod
-    def record(cls, sample: Callable[[Any], Any]) -> DrawPlan:
-        """Run ``sample(rng)`` once on a throwaway generator and keep its calls."""
+    def record(cls, samplers: Sequence[Callable[[Any], Any]]) -> tuple[DrawPlan, list[int]]:
+        """Run each ``sample(rng)`` once, in order, on a throwaway generator and keep their
+        calls; also where each sampler's calls start (and, last, how many there are)."""
         rec = _Recorder(np.random.default_rng(0))
-        sample(rec)
-        return cls(rec.calls)
+        starts = []
+        for sample in samplers:
+            starts.append(len(rec.calls))
+            sample(rec)
+        starts.append(len(rec.calls))
+        return cls(rec.calls), starts
 
     def replayer(self, rng: np.random.Generator) -> Replay:
         """Make this episode's RNG calls now, in the recorded order; each uniform block is
@@ -115,6 +120,26 @@ class Replay:
             f"DR draw {i} is {kind}{size!r}, recorded {k}{s!r} on [{low}, {high}]: a sampler's "
             "draws must not depend on drawn values"
         )
+
+    @property
+    def at(self) -> int:
+        """The next recorded call."""
+        return self._i
+
+    def seek(self, i: int) -> None:
+        """Go on from recorded call ``i`` (a sampler whose draws were taken by ``value``)."""
+        self._i = i
+
+    def value(self, i: int) -> Any:
+        """Recorded uniform call ``i``'s value, as ``uniform`` would return it, unchecked: for
+        callers that matched their draws to the recording once, up front."""
+        _, size, _, _, seg, off = self._where[i]
+        values, flat = self._blocks[seg]
+        if size is None:
+            return flat[off]
+        if isinstance(size, tuple):
+            return values[off : off + math.prod(size)].reshape(size)
+        return values[off : off + size]
 
     def uniform(self, low: float = 0.0, high: float = 1.0, size: Any = None) -> Any:
         i = self._i

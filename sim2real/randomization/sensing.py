@@ -15,7 +15,8 @@ reported: what ``calibration.cube.StereoCubeTracker`` gives the deploy loop.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +36,24 @@ def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds)
         "occlusion_radius_m": float(ranges["occlusion_radius_m"].sample(rng)),
         "occlusion_prob": float(ranges["occlusion_prob"].sample(rng)),
     }
+
+
+def _steps(x: Any) -> int:
+    return round(float(x))
+
+
+def direct_keys(ids: ModelIds) -> list[tuple[str, int | None, Callable[[Any], Any] | None]]:
+    """``sample``'s keys in its order, each one ``Range.sample`` of this size, cast as there."""
+    return [
+        ("joint_noise_rad", None, float),
+        ("joint_bias_rad", len(ids.arm_dofs), None),
+        ("stereo_pixel_noise_px", None, float),
+        ("position_bias_m", 3, None),
+        ("obs_delay_steps", None, _steps),
+        ("point_dropout_prob", None, float),
+        ("occlusion_radius_m", None, float),
+        ("occlusion_prob", None, float),
+    ]
 
 
 class SensorModel:

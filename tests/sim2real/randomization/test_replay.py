@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import sim2real.envs  # noqa: F401
-from sim2real.randomization import DomainRandomizer, DRConfig, Range, preset_names
+from sim2real.randomization import CATEGORIES, DomainRandomizer, DRConfig, Range, preset_names
 from sim2real.randomization.replay import DrawPlan
 
 
@@ -41,6 +41,9 @@ def _check(randomizer: DomainRandomizer, seed: int, episodes: int) -> None:
 def test_replayed_draws_are_the_reference_bits(env_id: str, preset: str) -> None:
     randomizer = gym.make(env_id, dr=preset).unwrapped.randomizer
     assert randomizer._plan is not None  # the fast path is the one under test
+    listed = {name for name, cat in CATEGORIES.items() if cat.direct is not None}
+    taken = {step[0] for step in randomizer._steps if step[5] is not None}
+    assert taken == listed  # the listed categories do take their draws straight
     _check(randomizer, seed=11, episodes=60)
 
 
