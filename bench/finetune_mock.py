@@ -104,6 +104,7 @@ def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, fl
 def main() -> None:
     from hardware.spec import load_spec
     from sim2real.deploy.runner import DeployOptions
+    from sim2real.finetune.defaults import LEARNER_DEFAULTS
     from sim2real.finetune.runner import FinetuneOptions, finetune
     from sim2real.policies import shipped
 
@@ -114,8 +115,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=1)
     ap.add_argument("--algo", default=None)
     ap.add_argument("--mix-sim-buffer", action="store_true")
-    ap.add_argument("--utd", type=float, default=1.0)
-    ap.add_argument("--learning-starts", type=int, default=200)
+    ap.add_argument("--utd", type=float, default=LEARNER_DEFAULTS["utd"])
+    ap.add_argument("--learning-starts", type=int, default=LEARNER_DEFAULTS["learning_starts"])
+    ap.add_argument("--actor-starts", type=int, default=LEARNER_DEFAULTS["actor_starts"])
     ap.add_argument("--eval-every", type=float, default=1.5, help="arm minutes")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
@@ -133,7 +135,7 @@ def main() -> None:
         sim_success = getattr(card, "figures", {}).get("env_success_dr_default")
     common = {
         "policy": args.policy, "plant": args.plant, "algo": args.algo or "source's",
-        "mix_sim_buffer": args.mix_sim_buffer, "utd": args.utd,
+        "mix_sim_buffer": args.mix_sim_buffer, "utd": args.utd, "actor_starts": args.actor_starts,
         "watchdog_s": args.watchdog_s or spec.safety.watchdog_timeout_s,
         "machine": f"{platform.machine()} {os.cpu_count()} cpu",
         "date": time.strftime("%Y-%m-%d"),
@@ -156,7 +158,8 @@ def main() -> None:
             policy=args.policy, out=out,
             deploy=opts,
             minutes=args.minutes, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
-            utd=args.utd, learning_starts=args.learning_starts, keys=False,
+            utd=args.utd, learning_starts=args.learning_starts, actor_starts=args.actor_starts,
+            keys=False,
             eval_every_min=args.eval_every, eval_episodes=args.eval_episodes, seed=seed,
             start_timeout_s=30.0,
         )  # fmt: skip
