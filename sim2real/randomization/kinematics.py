@@ -27,7 +27,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import mujoco
-import numba
 import numpy as np
 
 from sim2real import model as names
@@ -230,14 +229,22 @@ def apply_reference(
         model.geom_pos[k.palm_geom] = p.palm_pos + shift
 
 
-def _jit(fn: Any) -> Any:
-    try:
-        return numba.njit(cache=True)(fn)
-    except RuntimeError:  # no writable cache directory: compile in this process
-        return numba.njit(cache=False)(fn)
+_KERNEL: list[Any] = []  # the compiled ``_write_geometry``, made on first use
 
 
-@_jit
+def _compiled() -> Any:
+    """numba is imported here, not with the module: ``from sim2real.randomization import
+    DRConfig`` (the CLI, evaluation) stays light; the kernel loads from numba's disk cache."""
+    if not _KERNEL:
+        import numba
+
+        try:
+            _KERNEL.append(numba.njit(cache=True)(_write_geometry))
+        except RuntimeError:  # no writable cache directory: compile in this process
+            _KERNEL.append(numba.njit(cache=False)(_write_geometry))
+    return _KERNEL[0]
+
+
 def _write_geometry(
     links: np.ndarray,
     tool: np.ndarray,
@@ -310,7 +317,8 @@ class _Views:
 
     k: _Ids
     p: _Plan
-    geometry: tuple[Any, ...]  # ``_write_geometry``'s arguments after the parameters
+    write: Any  # the compiled ``_write_geometry``
+    geometry: tuple[Any, ...]  # its arguments after the parameters
     box_geoms: tuple[int, ...]  # geoms whose bounding radius is |size|
     quat_out: tuple[np.ndarray, ...]  # body_quat rows: the joint bodies, then the wrist
     quat_in: tuple[np.ndarray, ...]  # their nominal rows
@@ -362,6 +370,7 @@ class _Views:
         return cls(
             k=k,
             p=p,
+            write=_compiled(),
             geometry=geometry,
             box_geoms=tuple(int(p.geoms[i]) for i in p.box_rows),
             quat_out=tuple(quat[b] for b in bodies),
@@ -384,7 +393,7 @@ def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: 
     if v is None:
         return
     offsets = np.asarray(params["joint_offset_rad"], dtype=float)
-    _write_geometry(
+    v.write(
         np.asarray(params["link_length_delta_m"], dtype=float),
         np.asarray(params["tool_offset_delta_m"], dtype=float),
         *v.geometry,
