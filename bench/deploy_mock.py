@@ -21,6 +21,7 @@ import argparse
 import dataclasses
 import os
 import platform
+import shutil
 import sys
 import tempfile
 import time
@@ -186,6 +187,7 @@ def main() -> None:
             except Exception as exc:  # a stop is a result too (a watchdog trip, a lost reply)
                 emit("timing_busy_core_failed", str(exc).splitlines()[0], "", policy=ref,
                      variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
+                shutil.rmtree(log_path.parent, ignore_errors=True)
                 continue
             finally:
                 sys.setswitchinterval(before)
