@@ -57,6 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--learning-rate", type=float, default=None, help="actor and critic (default: the source's)"
     )
+    parser.add_argument(
+        "--noise-std", type=float, default=None,
+        help="DDPG/TD3 exploration noise std on the normalised actions (default: the source's)",
+    )  # fmt: skip
     parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
     parser.add_argument("--batch-size", type=int, default=None)
     parser.add_argument("--learner-nice", type=int, default=10)
@@ -119,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
         mix_sim_buffer=args.mix_sim_buffer, sim_buffer_steps=args.sim_buffer_steps,
         resume=args.resume, keys=args.keys, checkpoint_every=args.checkpoint_every,
         learning_starts=args.learning_starts, utd=args.utd, actor_starts=args.actor_starts,
-        learning_rate=args.learning_rate, publish_every=args.publish_every,
+        learning_rate=args.learning_rate, noise_std=args.noise_std,
+        publish_every=args.publish_every,
         batch_size=args.batch_size, learner_nice=args.learner_nice,
         success_window=args.success_window, eval_every_min=args.eval_every,
         eval_episodes=args.eval_episodes, max_episodes=args.max_episodes, seed=args.seed,

@@ -61,6 +61,7 @@ class FinetuneOptions:
     utd: float = float(LEARNER_DEFAULTS["utd"])  # gradient steps per online transition
     actor_starts: int = int(LEARNER_DEFAULTS["actor_starts"])  # online transitions: critic only
     learning_rate: float | None = None  # None: the source run's
+    noise_std: float | None = None  # DDPG/TD3 exploration std (normalised actions); None: source's
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
     learner_nice: int = 10
@@ -82,6 +83,10 @@ class FinetuneOptions:
         for name in ("checkpoint_every", "publish_every", "eval_episodes", "success_window"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"--{name.replace('_', '-')} must be >= 1")
+        if self.noise_std is not None and not (
+            math.isfinite(self.noise_std) and 0 <= self.noise_std <= 1
+        ):
+            raise ConfigError(f"--noise-std must be in [0, 1], got {self.noise_std!r}")
         if self.actor_starts < 0:
             raise ConfigError(f"--actor-starts must be >= 0, got {self.actor_starts}")
         if self.learning_rate is not None and not (
@@ -221,8 +226,9 @@ class _Run:
             stack.callback(learner.close)
             info = learner.wait_ready()
             normalizer = ObsNormalizer.from_stats(self.src.obs_stats)
+            noise = info["noise_std"] if self.fo.noise_std is None else self.fo.noise_std
             actor = NumpyActor(info["kind"], info["shapes"], learner.initial_weights(),
-                               normalizer, info["noise_std"])  # fmt: skip
+                               normalizer, noise)  # fmt: skip
             self.report({"event": "learner_ready", "algo": self.algo, **info,
                          "learner_pid": learner.pid, "resumed": self.resumed,
                          "env_steps": self.state["env_steps"],

@@ -68,7 +68,15 @@ def test_resume_without_a_checkpoint_and_a_busy_out(
 
 
 @pytest.mark.parametrize(
-    ("flag", "value"), [("--minutes", "0"), ("--utd", "-1"), ("--backend", "sim")]
+    ("flag", "value"),
+    [
+        ("--minutes", "0"),
+        ("--utd", "-1"),
+        ("--backend", "sim"),
+        ("--actor-starts", "-5"),
+        ("--learning-rate", "2"),
+        ("--noise-std", "1.5"),
+    ],
 )
 def test_bad_numbers_and_backends(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], flag: str, value: str
