@@ -9,15 +9,18 @@ the machine's load moves both figures by ±30 %. Run: make bench.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
+import sys
 import time
 
 import gymnasium as gym
 import numpy as np
 
 import sim2real.envs  # noqa: F401
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from support.load import emit
 
 ROUNDS = int(os.environ.get("BENCH_ROUNDS", "3"))
 RESETS = 2000
@@ -54,8 +57,7 @@ def main() -> None:
         "load_avg_1min": round(os.getloadavg()[0], 1),
     }
     for metric, values in (("reach_reset_warm_us", warm), ("reach_reset_in_loop_us", in_loop)):
-        value = round(min(values) * 1e6, 1)
-        print(json.dumps({"metric": metric, "value": value, "unit": "us", **machine}), flush=True)
+        emit(metric, round(min(values) * 1e6, 1), "us", **machine)
 
 
 if __name__ == "__main__":
