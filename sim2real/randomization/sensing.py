@@ -150,7 +150,8 @@ class SensorModel:
         self, q_rad: np.ndarray, points_m: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
         """Joint readings (n,) and point estimates (k, 3) from one block of pre-drawn noise:
-        the env's per-step path (``read_joints``/``read_points`` are the readable reference)."""
+        the reference the arm envs' compiled step (``sim2real.envs.fused.observe``) is held to
+        (``tests/sim2real/envs/test_fused.py``). ``read_joints``/``read_points``: per-call draws."""
         n, k = self._n, len(points_m)
         z = self.draw(k, rng)
         joints = q_rad + self.joint_bias
