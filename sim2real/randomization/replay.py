@@ -145,16 +145,11 @@ class Replay:
         i = self._i
         if i >= self._n:
             raise self._mismatch(i, "u", size)
-        k, s, rl, rh, seg, off = self._where[i]
+        k, s, rl, rh = self._where[i][:4]
         if k != "u" or s != size or rl != low or rh != high:
             raise self._mismatch(i, "u", size)
         self._i = i + 1
-        values, flat = self._blocks[seg]
-        if size is None:
-            return flat[off]
-        if isinstance(size, tuple):
-            return values[off : off + math.prod(size)].reshape(size)
-        return values[off : off + size]
+        return self.value(i)
 
     def standard_normal(self, size: Any = None) -> Any:
         i = self._i
