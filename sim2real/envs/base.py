@@ -81,7 +81,7 @@ class Task(ABC):
     # and measured figures stay valid until it is re-measured with them.
     command_fields: ClassVar[bool] = False
     # The gripper can hide the task points (a cube in its fingers): the sensor model drops them
-    # out near the tool and reports how long they have been blind (``Sensed.blind_s``).
+    # out near the tool and reports how long they have been blind (``SensorModel.occlude``).
     occludable: ClassVar[bool] = False
     # What the task needs outside the simulator (``sim2real.envs.contract``); None: sim only.
     contract: ClassVar[type[DeployContract] | None] = None
