@@ -42,6 +42,7 @@ from hardware.emulator.lifecycle import PtyDevice
 from hardware.emulator.server import EmulatorConfig
 from hardware.errors import HardwareError
 from hardware.plant import Plant
+from sim2real.deploy.child import death_line, one_line
 from sim2real.model import RigSpec
 
 log = logging.getLogger(__name__)
@@ -75,11 +76,6 @@ class MockArmJob:
     # arm's own controller does, and the physics thread, which holds the process's GIL, is not
     # preempted by normal jobs while the emulator waits for it. None: normal scheduling.
     realtime_priority: int | None = None
-
-
-def _one_line(exc: BaseException) -> str:
-    text = (str(exc).splitlines() or [""])[0]
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def _write_truth(block: np.ndarray, t_s: float, truth: Any, steps: int) -> None:
@@ -221,23 +217,7 @@ class MockArmProcess(PtyDevice):
         """One line saying how the child died, or None while it lives (or was stopped)."""
         if self._proc is None or self._stopping:
             return None
-        rc = self._proc.poll()
-        if rc is None:
-            return None
-        how = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit {rc}"
-        last = self._last_words() if rc > 0 else ""  # a signal leaves no words of its own
-        return f"the mock arm process died ({how})" + (f": {last}" if last else "")
-
-    def _last_words(self) -> str:
-        if self._stderr is None:
-            return ""
-        with contextlib.suppress(OSError):
-            self._stderr.seek(0, os.SEEK_END)
-            size = self._stderr.tell()
-            self._stderr.seek(max(0, size - 4096))
-            lines = self._stderr.read().decode(errors="replace").strip().splitlines()
-            return lines[-1].strip() if lines else ""
-        return ""
+        return death_line("mock arm process", self._proc.poll(), self._stderr)
 
     def check_alive(self) -> None:
         died = self.death()
@@ -345,7 +325,7 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -
     truth: np.ndarray = np.ndarray((_TRUTH_SIZE,), np.float64, truth_shm.buf)
 
     def die(exc: BaseException) -> None:  # the physics thread failed: the arm is gone
-        print(f"mock physics stopped: {_one_line(exc)}", file=sys.stderr, flush=True)
+        print(f"mock physics stopped: {one_line(exc)}", file=sys.stderr, flush=True)
         os._exit(3)
 
     physics = MockPhysics(job.plant.spec, job.scene, emulator, job.rig, on_error=die)
@@ -384,7 +364,7 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -
                     raise KeyError(f"unknown op {op!r}; valid: {sorted(ops)}")
                 conn.send(("ok", ops[op](*args)))
             except Exception as exc:
-                conn.send(("error", _one_line(exc)))
+                conn.send(("error", one_line(exc)))
     finally:
         physics.close()
         emulator.stop()
@@ -413,7 +393,7 @@ def main() -> None:
         _serve(conn, truth_name, job, realtime)
     except Exception as exc:  # start-up failed: the host raises this line
         with contextlib.suppress(OSError):
-            conn.send(("error", _one_line(exc)))
+            conn.send(("error", one_line(exc)))
         raise
 
 

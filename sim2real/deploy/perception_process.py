@@ -37,6 +37,7 @@ import numpy as np
 from calibration.kalman import TrackerConfig
 from calibration.triangulate import StereoRig
 from hardware.errors import HardwareError
+from sim2real.deploy.child import death_line, one_line
 from sim2real.deploy.frames import FramePair
 from sim2real.deploy.perception import (
     MarkerLayout,
@@ -87,11 +88,6 @@ class PerceptionJob:
 
     def tracker(self) -> PairTracker:
         return PairTracker(self.rig, self.base_T_left, self.layout, self.objects, self.ee_tracker)
-
-
-def _one_line(exc: BaseException) -> str:
-    text = (str(exc).splitlines() or [""])[0]
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def _publish(
@@ -174,7 +170,7 @@ def main() -> None:
             os.nice(job.nice)
         _serve(job, parent)
     except Exception as exc:
-        print(_one_line(exc), file=sys.stderr, flush=True)
+        print(one_line(exc), file=sys.stderr, flush=True)
         sys.exit(3)
 
 
@@ -237,22 +233,7 @@ class PerceptionProcess:
         """One line saying how the child died, or None while it lives."""
         if self._proc is None:
             return None
-        rc = self._proc.poll()
-        if rc is None:
-            return None
-        how = f"killed by {signal.Signals(-rc).name}" if rc < 0 else f"exit {rc}"
-        last = self._last_words() if rc > 0 else ""
-        return f"the perception process died ({how})" + (f": {last}" if last else "")
-
-    def _last_words(self) -> str:
-        if self._stderr is None:
-            return ""
-        with contextlib.suppress(OSError):
-            self._stderr.seek(0, os.SEEK_END)
-            self._stderr.seek(max(0, self._stderr.tell() - 4096))
-            lines = self._stderr.read().decode(errors="replace").strip().splitlines()
-            return lines[-1].strip() if lines else ""
-        return ""
+        return death_line("perception process", self._proc.poll(), self._stderr)
 
     def check_alive(self) -> None:
         died = self.death()
