@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -95,3 +99,20 @@ def pick_policy(
         return a
 
     return policy
+
+
+def pid_alive(pid: int) -> bool:
+    """A process that exists and is not a zombie (an orphan's reaper may be slow or absent)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    state = next((ln for ln in status.splitlines() if ln.startswith("State:")), "")
+    return "Z" not in state.split()[1:2]
+
+
+def kill_pid(pid: int | None) -> None:
+    """SIGKILL a child a test started, if it is still there."""
+    if pid is not None:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)

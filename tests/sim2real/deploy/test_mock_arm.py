@@ -6,7 +6,6 @@ what a loaded machine needs (a stuck child fails them instead of hanging the sui
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import subprocess
@@ -26,25 +25,9 @@ from sim2real.deploy.mock_arm import MockArmJob, MockArmProcess
 from sim2real.deploy.policy_io import PolicyIO
 from sim2real.deploy.runner import DeployOptions, run_policy
 
-from .conftest import ik_policy  # type: ignore[import-not-found]
+from .conftest import ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
 
 EXIT_BOUND_S = 60.0
-
-
-def _alive(pid: int) -> bool:
-    """A process that exists and is not a zombie (an orphan's reaper may be slow or absent)."""
-    try:
-        status = Path(f"/proc/{pid}/status").read_text()
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    state = next((ln for ln in status.splitlines() if ln.startswith("State:")), "")
-    return "Z" not in state.split()[1:2]
-
-
-def _kill(pid: int | None) -> None:
-    if pid is not None:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
 
 
 def test_the_control_channel_round_trips_and_the_pty_serves_the_arm(spec: ArmSpec) -> None:
@@ -74,7 +57,7 @@ def test_the_control_channel_round_trips_and_the_pty_serves_the_arm(spec: ArmSpe
         assert mock.applied("torque"), "the device saw no torque command over the pty"
         with pytest.raises(HardwareError, match=r"^mock arm: jump failed: KeyError.*valid"):
             mock.call("jump")
-    assert mock.pid is not None and not _alive(mock.pid)
+    assert mock.pid is not None and not pid_alive(mock.pid)
     assert mock.applied("torque")  # the device's log outlives its process
 
 
@@ -106,17 +89,17 @@ def test_the_arm_process_dies_when_its_host_is_killed() -> None:
     try:
         assert host.stdout is not None
         child = int(host.stdout.readline())
-        assert _alive(child)
+        assert pid_alive(child)
         host.kill()  # SIGKILL: no cleanup code of the host's runs
         host.wait()
         deadline = time.monotonic() + EXIT_BOUND_S
-        while _alive(child) and time.monotonic() < deadline:
+        while pid_alive(child) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not _alive(child), "the mock arm outlived its host"
+        assert not pid_alive(child), "the mock arm outlived its host"
     finally:
         host.kill()
         host.wait()
-        _kill(child)
+        kill_pid(child)
 
 
 def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
@@ -147,7 +130,7 @@ def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
             )  # fmt: skip
     finally:
         for pid in killed:
-            _kill(pid)
+            kill_pid(pid)
     message = str(info.value)
     assert message == "the mock arm process died (killed by SIGKILL)", message
     assert np.load(log)["obs"].shape[0] >= 10

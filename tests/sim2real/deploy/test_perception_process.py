@@ -7,7 +7,6 @@ Nothing here depends on a rate or a period: each frame pair is published and the
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import signal
@@ -33,25 +32,9 @@ from sim2real.deploy.render_process import FrameBlock, SharedFrames
 from sim2real.deploy.runner import DeployOptions, run_policy
 from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
 
-from .conftest import ik_policy  # type: ignore[import-not-found]
+from .conftest import ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
 
 BOUND_S = 60.0
-
-
-def _alive(pid: int) -> bool:
-    """A process that exists and is not a zombie."""
-    try:
-        status = Path(f"/proc/{pid}/status").read_text()
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    state = next((ln for ln in status.splitlines() if ln.startswith("State:")), "")
-    return "Z" not in state.split()[1:2]
-
-
-def _kill(pid: int | None) -> None:
-    if pid is not None:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
 
 
 @pytest.fixture(scope="module")
@@ -184,17 +167,17 @@ def test_the_perception_process_dies_when_its_host_is_killed() -> None:
     try:
         assert host.stdout is not None
         child = int(host.stdout.readline())
-        assert _alive(child)
+        assert pid_alive(child)
         host.kill()  # SIGKILL: no cleanup code of the host's runs
         host.wait()
         deadline = time.monotonic() + BOUND_S
-        while _alive(child) and time.monotonic() < deadline:
+        while pid_alive(child) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not _alive(child), "the perception process outlived its host"
+        assert not pid_alive(child), "the perception process outlived its host"
     finally:
         host.kill()
         host.wait()
-        _kill(child)
+        kill_pid(child)
 
 
 def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_the_log(
@@ -227,7 +210,7 @@ def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_t
             )  # fmt: skip
     finally:
         for pid in killed:
-            _kill(pid)
+            kill_pid(pid)
     message = str(info.value)
     assert message == "the perception process died (killed by SIGKILL)", message
     assert np.load(log)["obs"].shape[0] >= 10
