@@ -358,6 +358,7 @@ class _Run:
                 except HardwareError as exc:
                     self._recover(exc, env, t0)
                     continue
+                obs_n = norm(obs)
                 while not (truncated or terminated):
                     weights = learner.new_weights()
                     if weights is not None:
@@ -373,7 +374,8 @@ class _Run:
                     # the transition as the env saw it: this period's observation, the action
                     # the policy chose (the safety filter acts inside the arm, as in training),
                     # the reward with the source run's training shaping, the next observation
-                    learner.send(norm(obs), action, shaper(reward, action), norm(nxt), terminated)
+                    nxt_n = norm(nxt)  # the next period's normalised observation too
+                    learner.send(obs_n, action, shaper(reward, action), nxt_n, terminated)
                     st["env_steps"] += 1
                     rows.add(
                         t_s=t_s, episode=episode, step=step, obs=obs, action=action,
@@ -388,7 +390,7 @@ class _Run:
                     if recorder is not None:
                         frames = getattr(env.perception, "last_frames", None)
                         recorder.on_period(frames)
-                    obs = nxt
+                    obs, obs_n = nxt, nxt_n
                     step += 1
                 else:
                     self._episode_done(env, learner, human, recorder, rows, info, t0, step,
