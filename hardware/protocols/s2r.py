@@ -318,9 +318,12 @@ class S2RProtocol(Protocol):
                 self.settle()  # to the posted command
         else:
             self.settle()
+        return self._exchange(*self._next_frame(msg_type, payload), msg_type)
+
+    def _next_frame(self, msg_type: int, payload: bytes) -> tuple[int, bytes]:
+        """A new request's SEQ and its encoded frame."""
         self._seq = (self._seq + 1) & 0xFF
-        seq = self._seq
-        return self._exchange(seq, encode_frame(seq, msg_type, payload), msg_type)
+        return self._seq, encode_frame(self._seq, msg_type, payload)
 
     def _exchange(
         self, seq: int, frame_bytes: bytes, msg_type: int, posted: bool = False
@@ -440,10 +443,9 @@ class S2RProtocol(Protocol):
         if not self.pipeline:
             return self._state(self._request(SET_TARGETS, encode_targets(units)))
         self.settle()
-        self._seq = (self._seq + 1) & 0xFF
-        frame_bytes = encode_frame(self._seq, SET_TARGETS, encode_targets(units))
+        seq, frame_bytes = self._next_frame(SET_TARGETS, encode_targets(units))
         self.stats.stale_frames += self.link.post(frame_bytes)
-        self._pending = (self._seq, frame_bytes)
+        self._pending = (seq, frame_bytes)
         return None
 
     def set_torque(self, on: bool, hold_units: np.ndarray | None = None) -> None:
