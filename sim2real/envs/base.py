@@ -94,6 +94,12 @@ class Task(ABC):
     hold_margin_rad: ClassVar[float] = math.inf
     blind_cap_s: ClassVar[float] = 0.0
 
+    def placement(self, env: Arm3Env) -> dict[str, np.ndarray]:
+        """This episode's objects in the deploy contract's format (``DeployContract.placement``:
+        name → position, plus yaw or heading): a world that places objects replays the env's
+        own episode, so env and deploy runs compare on the same placements."""
+        raise NotImplementedError(f"task {self.name!r} does not report its placement")
+
     def __init__(self) -> None:
         # Vectors the compiled observation reads: row 0 the goal of "object_to_goal", row 1
         # the ``goal_vel`` field. A task writes them when they change.

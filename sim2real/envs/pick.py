@@ -206,6 +206,7 @@ class PickTask(Task):
         self._finger_ids = np.zeros(0, dtype=np.int32)
         self._cube_xpos = np.zeros(3)  # set with the ids at the first reset
         self._cube_points = np.zeros((1, 3))
+        self._placed = np.zeros(3)  # x, y (m), yaw (rad): where ``reset`` put the cube
         self._shaping_weights = np.array(
             [REACH_WEIGHT_PER_M, GRASP_BONUS, LIFT_WEIGHT_PER_M, LIFT_M]
         )
@@ -229,9 +230,13 @@ class PickTask(Task):
         q[a : a + 3] = (xy[0], xy[1], half)
         q[a + 3 : a + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         self.rest_z_m = half
+        self._placed = np.array([xy[0], xy[1], yaw])
         self.goal_m = lift_goal(np.array([xy[0], xy[1], half]))
         self.obs_aux[0] = self.goal_m
         env.data.mocap_pos[0] = self.goal_m  # the env's reset runs mj_forward next
+
+    def placement(self, env: Arm3Env) -> dict[str, np.ndarray]:
+        return {"cube": self._placed.copy()}
 
     def held_start(
         self, env: Arm3Env, rng: np.random.Generator, height_m: float | None

@@ -64,6 +64,9 @@ class ReachTask(Task):
         self.target_m = np.zeros(3)
         self._sampler: ReachableSampler | None = None
 
+    def placement(self, env: Arm3Env) -> dict[str, np.ndarray]:
+        return {"target": self.target_m.copy()}
+
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
         if self._sampler is None or self._sampler.spec is not env.spec_arm:
             self._sampler = ReachableSampler(env.spec_arm)

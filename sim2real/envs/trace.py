@@ -138,11 +138,16 @@ class TraceTask(Task):
         self.velocity_m_s = np.zeros(3)
         self._err_sum_m = 0.0
         self._err_n = 0
+        self._heading_rad = 0.0
+
+    def placement(self, env: Arm3Env) -> dict[str, np.ndarray]:
+        return {"seam": np.array([self.start_m[0], self.start_m[1], self._heading_rad])}
 
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
         start, heading = sample_seam(env.spec_arm, rng)
         d = np.array([np.cos(heading), np.sin(heading), 0.0])
         self.start_m, self.dir = start, d
+        self._heading_rad = heading
         m = env.model
         seam = m.body_mocapid[m.body(names.SEAM_BODY).id]
         env.data.mocap_pos[seam] = (start[0], start[1], 0.0003)
