@@ -4,7 +4,12 @@ mock chain, and the loop's timing while another process keeps the second core bu
 Per policy (a shipped name or a run dir), JSON lines:
 * ``env_success_dr_{default,none}``: the env's own held-out success (Wilson interval);
 * ``deploy_{sim,mock}_success`` and each task's figures (pick: grasped, lift, blind time);
-* ``sim_vs_env_success`` and ``mock_vs_sim_success`` ratios (targets ≥ 0.9 each);
+* ``sim_vs_env_success`` and ``mock_vs_sim_success`` ratios (targets ≥ 0.9 each).
+  Paired by default: the sim and mock backends replay the placements of the env's held-out
+  episodes under DR ``none`` (``Task.placement`` → ``LoopConfig.placements``), so every ratio
+  compares the same objects, and ``*_pairs`` count both / first only / second only / neither.
+  (At p ≈ 0.3, two independent 100-episode samples cannot resolve a 0.9 ratio: σ ≈ 0.2.)
+  ``--unpaired``: the loop draws its own placements, as ``sim2real deploy`` does;
 * with ``--timing``: a mock run at the spec's own watchdog while a busy-loop process keeps a
   core busy: loop rate (target 20 Hz), period jitter p99 (target ≤ 5 ms), watchdog trips (0).
   The mock arm (emulator + physics) runs in its own process at ``--mock-nice``; the loop's
@@ -26,6 +31,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from support.load import busy_core, emit
@@ -69,13 +75,41 @@ def breakdown(log_path: Path, nominal_s: float, over_ms: float = 5.0) -> dict[st
     return out
 
 
+def env_episodes(target: Any, dr: str, seeds: list[int]) -> tuple[dict[str, Any], list[Any]]:
+    """``evaluate``'s figures on ``seeds`` and each episode's placement (``Task.placement``)."""
+    from sim2real.evaluate.core import report
+    from sim2real.evaluate.rollout import run_episodes
+
+    placements: list[dict[str, Any]] = []
+
+    def on_step(_slot: int, env: Any) -> None:
+        u = env.unwrapped
+        if u.steps == 0:  # just reset: slots start their seeds in order
+            placements.append(u.task.placement(u))
+
+    dr_config = target.dr(dr)
+    t0 = time.perf_counter()
+    result = run_episodes(target.policy, target.env_factory(dr_config), seeds, on_step=on_step)
+    return report(target, dr_config, seeds, result, time.perf_counter() - t0), [
+        (e.success, placements[i]) for i, e in enumerate(result.episodes)
+    ]
+
+
+def pairs(first: list[bool], second: list[bool]) -> dict[str, int]:
+    both = sum(a and b for a, b in zip(first, second, strict=True))
+    only1 = sum(a and not b for a, b in zip(first, second, strict=True))
+    only2 = sum(b and not a for a, b in zip(first, second, strict=True))
+    return {"both": both, "first_only": only1, "second_only": only2,
+            "neither": len(first) - both - only1 - only2}  # fmt: skip
+
+
 def main() -> None:
     import torch
 
     from hardware.spec import load_spec
     from sim2real.deploy.loop import LoopConfig
     from sim2real.deploy.runner import DeployOptions, deploy
-    from sim2real.evaluate import EvalTarget, evaluate
+    from sim2real.evaluate import EvalTarget
 
     torch.set_num_threads(1)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -84,6 +118,10 @@ def main() -> None:
     parser.add_argument("--backends", default="sim,mock", help="comma list ('' for none)")
     parser.add_argument("--timing", action="store_true", help="add the busy-core timing run")
     parser.add_argument("--timing-episodes", type=int, default=20)
+    parser.add_argument(
+        "--unpaired", action="store_true",
+        help="sim and mock draw the loop's own placements instead of the env's (DR none)",
+    )  # fmt: skip
     parser.add_argument(
         "--watchdog-s", type=float, default=None,
         help="success runs only, on a machine shared with other jobs: a longer mock watchdog "
@@ -127,13 +165,21 @@ def main() -> None:
     spec = load_spec()
     machine = f"{platform.machine()} {os.cpu_count()} cpu"
     for ref in args.policies:
-        env = {}
+        env: dict[str, float] = {}
+        outcomes: dict[str, list[bool]] = {}
+        placements: tuple[Any, ...] = ()
         if len(backends) > 1:
+            target = EvalTarget.load(ref)
+            seeds = target.held_out_seeds(args.episodes)
             for dr in ("default", "none"):
-                ev = evaluate(EvalTarget.load(ref), episodes=args.episodes, dr=dr)
+                ev, episodes = env_episodes(target, dr, seeds)
                 env[dr] = ev["success_rate"]
                 emit(f"env_success_dr_{dr}", ev["success_rate"], "fraction", policy=ref,
                      ci95=ev["success_rate_wilson95"], episodes=args.episodes, machine=machine)  # fmt: skip
+                if dr == "none":  # the nominal model, as the sim backend runs
+                    outcomes["env"] = [ok for ok, _ in episodes]
+                    if not args.unpaired:
+                        placements = tuple(p for _, p in episodes)
         rates = {}
         for backend in backends:
             t0 = time.perf_counter()
@@ -141,28 +187,39 @@ def main() -> None:
             # env steps): sim/env then measures the pipeline, not this machine's load
             opts = DeployOptions(backend=backend, watchdog_s=args.watchdog_s,
                                  sim_clock=args.sim_clock)  # fmt: skip
-            res = deploy(ref, spec, opts, LoopConfig(episodes=args.episodes))
+            res = deploy(ref, spec, opts,
+                         LoopConfig(episodes=args.episodes, placements=placements))  # fmt: skip
             s = res.summary()
             rates[backend] = s["success_rate"]
+            outcomes[backend] = [e.success for e in res.episodes]
             emit(f"deploy_{backend}_success", s["success_rate"], "fraction", policy=ref,
                  task=s["task"], ci95=wilson(res.successes, s["episodes"]),
                  episodes=s["episodes"], wall_s=round(time.perf_counter() - t0, 1),
                  stopped_early=s["stopped_early"], watchdog_s=args.watchdog_s,
                  sim_clock=args.sim_clock if backend == "sim" else None,
+                 placements="env (DR none)" if placements else "loop",
                  load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
             emit(f"deploy_{backend}_task_figures", s["task_figures"], "", policy=ref,
                  episode_stops=len(s["episode_stops"]))  # fmt: skip
+        paired = bool(placements)
         if "sim" in rates and env:
             ratio = rates["sim"] / env["default"] if env["default"] > 0 else float("nan")
             emit("sim_vs_env_success", round(ratio, 3), "ratio", policy=ref, target=0.9,
-                 passed=ratio >= 0.9)  # fmt: skip
+                 passed=ratio >= 0.9, against="env DR default")  # fmt: skip
             # the sim backend runs the nominal model, as DR `none` does: the like-for-like ratio
             like = rates["sim"] / env["none"] if env["none"] > 0 else float("nan")
-            emit("sim_vs_env_none_success", round(like, 3), "ratio", policy=ref)
+            emit("sim_vs_env_none_success", round(like, 3), "ratio", policy=ref, target=0.9,
+                 passed=like >= 0.9, paired=paired)  # fmt: skip
+            if paired and len(outcomes["sim"]) == len(outcomes["env"]):
+                emit("sim_vs_env_none_pairs", pairs(outcomes["env"], outcomes["sim"]), "",
+                     policy=ref, first="env DR none", second="sim")  # fmt: skip
         if {"sim", "mock"} <= set(rates):
             ratio = rates["mock"] / rates["sim"] if rates["sim"] > 0 else float("nan")
             emit("mock_vs_sim_success", round(ratio, 3), "ratio", policy=ref, target=0.9,
-                 passed=ratio >= 0.9)  # fmt: skip
+                 passed=ratio >= 0.9, paired=paired)  # fmt: skip
+            if len(outcomes["mock"]) == len(outcomes["sim"]):
+                emit("mock_vs_sim_pairs", pairs(outcomes["sim"], outcomes["mock"]), "",
+                     policy=ref, first="sim", second="mock")  # fmt: skip
         if args.timing:
             timing_opts = DeployOptions(backend="mock", realtime=not args.no_realtime)
             if args.mock_nice is not None:

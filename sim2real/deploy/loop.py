@@ -56,6 +56,9 @@ class LoopConfig:
     dry_run: bool = False
     overrun_warn_fraction: float = 0.2  # warn when a period runs 20 % long
     start_timeout_s: float = 10.0  # how long an episode waits for its objects to be seen, still
+    # Episode i's objects (``DeployContract.placement``'s format), replayed instead of drawn:
+    # env and deploy runs, or two backends, compare on the same placements (``Task.placement``).
+    placements: tuple[Mapping[str, Any], ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         if not 0.5 <= self.rate_hz <= 500:
@@ -66,6 +69,10 @@ class LoopConfig:
             )
         if not self.start_timeout_s > 0:
             raise ConfigError(f"start_timeout_s {self.start_timeout_s} must be > 0")
+        if self.placements and len(self.placements) < self.episodes:
+            raise ConfigError(
+                f"placements: {len(self.placements)} given for {self.episodes} episodes"
+            )
 
 
 LOG_KEYS = (
@@ -271,6 +278,8 @@ class DeployLoop:
         overruns = blind = 0
         stopped: str | None = None
         spec = self.decoder.spec
+        if cfg.placements:  # before the arm moves: a bad file is a config error, not a stop
+            self._check_placements(self.io.new_contract(spec, cfg.rate_hz), cfg.placements)
         try:
             for episode in range(cfg.episodes):
                 contract = self.io.new_contract(spec, cfg.rate_hz)
@@ -425,8 +434,13 @@ class DeployLoop:
         world that places them tries a new placement when the cameras cannot see one (behind
         the arm's base); on a real arm the first timeout stops the run."""
         tries = self.PLACEMENT_TRIES if self.world.places_objects else 1
+        replayed = self.config.placements
         for attempt in range(tries):
-            self.world.new_episode(self._placement(contract, rng))
+            if replayed:  # the same objects on every try: pairs stay paired
+                placed = {k: np.asarray(v, dtype=float) for k, v in replayed[episode].items()}
+                self.world.new_episode(placed)
+            else:
+                self.world.new_episode(self._placement(contract, rng))
             self.perception.reset()
             try:
                 return self._wait_until_ready(contract, episode)
@@ -438,6 +452,23 @@ class DeployLoop:
                 if not self.config.dry_run:
                     self.arm.home()
         raise AssertionError("unreachable")  # pragma: no cover
+
+    @staticmethod
+    def _check_placements(
+        contract: DeployContract, placements: tuple[Mapping[str, Any], ...]
+    ) -> None:
+        """Every replayed placement names what the task places, with the contract's shapes."""
+        drawn = contract.placement(np.random.default_rng(0))
+        want = {k: np.shape(v) for k, v in drawn.items()}
+        for i, placement in enumerate(placements):
+            got = {k: np.shape(v) for k, v in placement.items()}
+            if got != want:
+                raise ConfigError(
+                    f"placement {i} {got} does not match what task {contract.task!r} places: {want}"
+                )
+            for k, v in placement.items():
+                if not np.all(np.isfinite(np.asarray(v, dtype=float))):
+                    raise ConfigError(f"placement {i} {k!r} is not finite: {v}")
 
     MAX_PLACEMENT_DRAWS = 50
 

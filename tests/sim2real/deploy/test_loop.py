@@ -268,3 +268,40 @@ def test_trace_on_the_mock_arm_draws_again_instead_of_waiting_for_hidden_seam_pl
     assert result.stopped_early is None and len(result.episodes) == 2
     assert "drawn again" in caplog.text and "seam_end" in caplog.text
     assert "placing the objects anew" not in caplog.text
+
+
+def test_replayed_placements_put_the_env_episodes_objects_on_the_table(
+    spec: ArmSpec, pick_io: PolicyIO, tmp_path: Path
+) -> None:
+    """``LoopConfig.placements`` (from ``Task.placement``): episode i starts on placement i."""
+    import gymnasium as gym
+
+    env = gym.make("Sim2Real/Arm3Pick-v0", dr="none")
+    placements = []
+    for seed in (11, 12):
+        env.reset(seed=seed)
+        placements.append(env.unwrapped.task.placement(env.unwrapped))
+    env.close()
+    log = tmp_path / "replayed.npz"
+    run_policy(
+        pick_policy(spec, pick_io.builder, pick_io.decoder), pick_io, spec,
+        DeployOptions(backend="sim"),
+        LoopConfig(episodes=2, episode_steps=2, placements=tuple(placements)), log_path=log,
+    )  # fmt: skip
+    rows = np.load(log)
+    for i, placement in enumerate(placements):
+        first = int(np.flatnonzero(rows["episode"] == i)[0])
+        np.testing.assert_allclose(rows["cube_true_m"][first][:2], placement["cube"][:2], atol=1e-6)
+
+
+def test_replayed_placements_that_do_not_fit_the_task_are_refused(
+    spec: ArmSpec, pick_io: PolicyIO
+) -> None:
+    wrong = ({"target": np.array([0.2, 0.0, 0.1])},)
+    with pytest.raises(ConfigError, match=r"placement 0 .* does not match what task 'pick'"):
+        run_policy(
+            pick_policy(spec, pick_io.builder, pick_io.decoder), pick_io, spec,
+            DeployOptions(backend="sim"), LoopConfig(episodes=1, placements=wrong),
+        )  # fmt: skip
+    with pytest.raises(ConfigError, match="placements: 1 given for 2 episodes"):
+        LoopConfig(episodes=2, placements=wrong)
