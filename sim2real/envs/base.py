@@ -93,6 +93,9 @@ class Task(ABC):
     # far open of "closed" while commanded closed (``pick.holding``); blind times cap here.
     hold_margin_rad: ClassVar[float] = math.inf
     blind_cap_s: ClassVar[float] = 0.0
+    # ``shaping`` compiled into the observation's call (``fused.SHAPING_RULES``), fed by
+    # ``shaping_ids``/``shaping_prm``, which the task keeps current; "none": ``shaping`` runs.
+    shaping_rule: ClassVar[str] = "none"
 
     def placement(self, env: Arm3Env) -> dict[str, np.ndarray]:
         """This episode's objects in the deploy contract's format (``DeployContract.placement``:
@@ -104,6 +107,8 @@ class Task(ABC):
         # Vectors the compiled observation reads: row 0 the goal of "object_to_goal", row 1
         # the ``goal_vel`` field. A task writes them when they change.
         self.obs_aux = np.zeros((2, 3))
+        self.shaping_ids = np.zeros(0, dtype=np.int32)
+        self.shaping_prm = np.zeros(0)
 
     @abstractmethod
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
@@ -324,7 +329,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         if start == START_HELD:
             self._start_held(rng, height_m)
         mujoco.mj_forward(self.model, self.data)
-        obs, d = self._observe()
+        obs, d, _ = self._observe()
         success = self.task.success_from_distance(self, d)  # is_success's bits, d is its norm
         info = {"dr": self.dr_params, "is_success": success, "start": start}
         if self.privileged_space is not None:
@@ -337,30 +342,39 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             action = action.astype(np.float64)
         a = np.empty_like(action)
         targets = np.empty_like(self._targets)
-        fused.decode(
-            action, a, self._targets, targets, self._lo_rad, self._hi_rad,
-            self._max_delta[action.dtype], self._decode_grip,
-        )  # fmt: skip
-        self._targets = targets
-        if self._safety is None:
+        act, servo = self.actuation, self.actuation.servo
+        # the command noise is drawn before the safety filter runs: it draws nothing
+        noise = act.noise.take(self.np_random) if act.noise_rad > 0 else self._no_noise
+        cmd, max_delta = self._cmd, self._max_delta[action.dtype]
+        if self._safety is None:  # decode → servo in one call
+            fused.command(
+                action, a, self._targets, targets, max_delta, cmd, noise, act.noise_rad,
+                servo.applied_rad, servo.queue_rad, servo.head, self._ctrl,
+            )  # fmt: skip
             self._sent = targets
         else:
+            o = 2 * self._n_joints
+            fused.decode(
+                action, a, self._targets, targets, self._lo_rad, self._hi_rad, max_delta,
+                cmd[o + fused.C_DECODE_GRIP : o + fused.C_SERVO],
+            )  # fmt: skip
             self._sent = self._safety.filter(targets, self._sent)
-        act, servo = self.actuation, self.actuation.servo
-        noise = act.noise.take(self.np_random) if act.noise_rad > 0 else self._no_noise
-        fused.actuate(
-            self._sent, noise, act.noise_rad, self._servo_prm, servo.applied_rad,
-            servo.queue_rad, servo.head, self._ctrl, self._ctrl_grip,
-        )  # fmt: skip
+            fused.actuate(
+                self._sent, noise, act.noise_rad, cmd[o + fused.C_SERVO : o + fused.C_CTRL_GRIP],
+                servo.applied_rad, servo.queue_rad, servo.head, self._ctrl,
+                cmd[o + fused.C_CTRL_GRIP : o + fused.N_CMD],
+            )  # fmt: skip
+        self._targets = targets
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
-        self.task.after_step(self)
+        if self._after_step:
+            self.task.after_step(self)
         self._prev_action = a
         self._steps += 1
-        obs, d = self._observe()
+        obs, d, shaped = self._observe()
         success = self.task.success_from_distance(self, d)
         reward = float(self._reward_fn(d, d < self.task.success_threshold_m))
         if self.obs_mode != "goal":  # HER recomputes rewards from goals alone
-            reward += self.task.shaping(self)
+            reward += self.task.shaping(self) if shaped is None else shaped
         truncated = self._steps >= self.max_episode_steps
         info: dict[str, Any] = {"is_success": success, "distance_m": d}
         if self.privileged_space is not None:
@@ -472,17 +486,24 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._tool_xpos = self.data.site_xpos[self._tool_site]
         g = spec.gripper
         closed, opened, gap = (g.closed_rad, g.open_rad, g.max_gap_m) if g else (0.0, 1.0, 1.0)
-        self._decode_grip = np.array(
-            [float(self.decoder.use_gripper and g is not None), closed, opened]
-        )
-        self._ctrl_grip = np.array([float(self.twin.has_gripper), closed, opened, gap])
+        # ``fused.command``'s constants; ``_configure_fused`` writes the episode's servo
+        o = 2 * n_j
+        self._n_joints = n_j
+        self._cmd = np.zeros(o + fused.N_CMD)
+        self._cmd[:o] = np.concatenate([self._lo_rad, self._hi_rad])
+        self._cmd[o + fused.C_DECODE_GRIP : o + fused.C_SERVO] = (
+            float(self.decoder.use_gripper and g is not None), closed, opened,
+        )  # fmt: skip
+        self._cmd[o + fused.C_CTRL_GRIP : o + fused.N_CMD] = (
+            float(self.twin.has_gripper), closed, opened, gap,
+        )  # fmt: skip
         self._no_noise = np.zeros(n_j)
-        self._servo_prm = np.zeros(4)
+        self._after_step = type(self.task).after_step is not Task.after_step
         grip_reading = self.task.uses_gripper
         self._obs_qadr = np.append(self._qadr, self.twin.finger_qadr[:1] if grip_reading else [])
         self._obs_qadr = self._obs_qadr.astype(np.int64)
         links, signs = spec.links, [j.sign for j in spec.joints[:3]]
-        prm = np.zeros(fused.N_PRM)
+        prm = np.zeros(fused.N_PRM + self._n_readings)
         prm[fused.P_DT] = self.control_dt_s
         prm[fused.P_GRIP_CLOSED : fused.P_GRIP_READ + 1] = (closed, opened, gap, grip_reading)
         prm[fused.P_HOLD_MARGIN] = self.task.hold_margin_rad
@@ -494,10 +515,21 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         )  # fmt: skip
         prm[fused.P_GOAL_RULE] = fused.GOAL_RULES[self.task.goal_rule]
         prm[fused.P_OCCLUDABLE] = self.task.occludable
+        # pixels observe without the kernel, and HER's goal env takes no shaping: both call
+        # ``Task.shaping`` (or not) as before
+        compiled = self.task.shaping_rule != "none" and self.obs_mode == "state"
+        if self.task.shaping_rule not in fused.SHAPING_RULES:
+            raise UnknownNameError("shaping_rule", self.task.shaping_rule, fused.SHAPING_RULES)
+        prm[fused.P_SHAPING] = fused.SHAPING_RULES[self.task.shaping_rule] if compiled else 0
+        self._shaping_compiled = compiled
+        # a stand-in for MuJoCo's contact pairs when no rule reads them, of the same numba type
+        # (a strided int32 view), so ``observe`` keeps one specialisation
+        self._no_contacts = np.zeros((1, 4), dtype=np.int32)[:, ::2]
+        fused.put_camera(prm, self.sensors)
         self._prm = prm
         self._obs_state = np.zeros(fused.N_STATE, dtype=np.int64)
         k = self.task.n_points
-        self._no_uniforms = np.zeros((2, k))
+        self._uniforms = np.zeros((2, k))  # the occlusion draws, refilled each step
         self._last_seen = np.zeros((k, 3))
         self._blind_steps = np.zeros(k)
         self._goals = np.zeros((2, 3))
@@ -505,54 +537,51 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
     def _configure_fused(self) -> None:
         """The episode's servo and sensor parameters into the compiled step's arrays."""
         servo, sensors = self.actuation.servo, self.sensors
-        self._servo_prm[:] = (
+        o = 2 * self._n_joints
+        self._cmd[o + fused.C_SERVO : o + fused.C_CTRL_GRIP] = (
             servo.max_step_rad,
             servo.deadband_rad,
             servo.quantum_rad,
             servo.per_quantum,
         )
-        prm = self._prm
-        prm[fused.P_JOINT_NOISE] = sensors.joint_noise
-        prm[fused.P_RESOLUTION] = sensors.resolution_rad
-        prm[fused.P_INV_RESOLUTION] = sensors.inv_resolution
-        prm[fused.P_PX_NOISE] = sensors.px_noise
-        prm[fused.P_OCC_RADIUS] = sensors.occlusion_radius_m
-        prm[fused.P_OCC_PROB] = sensors.occlusion_prob
-        prm[fused.P_DROPOUT] = sensors.dropout_prob
+        fused.put_sensing(self._prm, sensors)
         delay, k = sensors.delay_steps, self.task.n_points
         self._obs_state[:] = (delay, 0, 0)
         self._hist_joints = np.zeros((delay + 1, self._n_readings))
         self._hist_points = np.zeros((delay + 1, k + 1, 3))
         self._hist_blind = np.zeros((delay + 1, k))
 
-    def _observe(self) -> tuple[Any, float]:
-        """The observation and the true achieved-to-desired distance (what success and reward
-        are judged on). One compiled call senses (``SensorModel``: read, occlude, delay), forms
-        the task's goal and fills the layout; the random draws are made here, in the order and
-        number the numpy models make them."""
-        achieved, desired = self.task.true_goals(self)
+    def _observe(self) -> tuple[Any, float, float | None]:
+        """The observation, the true achieved-to-desired distance (what success and reward
+        are judged on) and the task's compiled shaping (None: not compiled here, see
+        ``Task.shaping_rule``). One compiled call senses (``SensorModel``: read, occlude,
+        delay), forms the task's goal, fills the layout and shapes; the random draws are made
+        here, in the order and number the numpy models make them."""
+        task = self.task
+        achieved, desired = task.true_goals(self)
         if self.obs_mode == "pixels":
             diff = achieved - desired
-            return self._pixels(), math.sqrt(diff @ diff)
+            return self._pixels(), math.sqrt(diff @ diff), None
         rng = self.np_random
-        sensors, state = self.sensors, self._obs_state
-        points = self.task.true_points(self)
-        noise = sensors.draw(len(points) + 1, rng)
-        occluding = self.task.occludable and state[fused.S_SEEN]
-        uniforms = rng.random((2, len(points))) if occluding else self._no_uniforms
+        state = self._obs_state
+        points = task.true_points(self)
+        noise = self.sensors.draw(len(points) + 1, rng)
+        uniforms = self._uniforms
+        if task.occludable and state[fused.S_SEEN]:
+            rng.random(out=uniforms)  # rng.random((2, k))'s draws, into the buffer
+        contacts = self.data.contact.geom if self._shaping_compiled else self._no_contacts
         vec = np.empty(self.builder.size, dtype=np.float32)
-        d = fused.observe(
-            self._qpos, self._obs_qadr, self._tool_xpos, points,
-            self._prm, sensors.joint_bias, sensors.pos_bias, sensors.sigma_coef, sensors.cam_p_m,
-            sensors.cam_z, sensors.base_R_cam, noise, uniforms, self._last_seen,
-            self._blind_steps, state, self._hist_joints, self._hist_points, self._hist_blind,
-            self._targets, self._prev_action, self.task.obs_aux, self._layout, achieved, desired,
-            vec, self._goals,
+        d, shaped = fused.observe(
+            self._qpos, self._obs_qadr, self._tool_xpos, points, self._prm, noise, uniforms,
+            self._last_seen, self._blind_steps, state, self._hist_joints, self._hist_points,
+            self._hist_blind, self._targets, self._prev_action, task.obs_aux, self._layout,
+            achieved, desired, vec, self._goals, contacts, task.shaping_ids, task.shaping_prm,
         )  # fmt: skip
         if self.obs_mode == "goal":
             goals = self._goals.astype(np.float32)
-            return {"observation": vec, "achieved_goal": goals[0], "desired_goal": goals[1]}, d
-        return vec, d
+            obs = {"observation": vec, "achieved_goal": goals[0], "desired_goal": goals[1]}
+            return obs, d, None
+        return vec, d, shaped if self._shaping_compiled else None
 
     def _pixels(self) -> np.ndarray:
         if self._pixel_renderer is None:

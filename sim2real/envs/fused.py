@@ -24,12 +24,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
 from numba.core import types
 from numba.extending import intrinsic
+
+if TYPE_CHECKING:
+    from sim2real.randomization.sensing import SensorModel
 
 
 def _jit(fn: Callable[..., Any]) -> Any:
@@ -146,6 +149,41 @@ def actuate(
         ctrl[n] = frac * grip[3] / 2
 
 
+# Slots of ``command``'s ``cmd`` array (float64) after its 2n joint limits (lower, then upper):
+# ``decode``'s ``grip``, ``actuate``'s ``servo`` and ``grip``.
+C_DECODE_GRIP, C_SERVO, C_CTRL_GRIP, N_CMD = 0, 3, 7, 11
+
+
+@_jit
+def command(
+    action: np.ndarray,
+    a_out: np.ndarray,
+    previous_rad: np.ndarray,
+    targets_out: np.ndarray,
+    max_delta: Any,
+    cmd: np.ndarray,
+    noise: np.ndarray,
+    noise_rad: float,
+    applied_rad: np.ndarray,
+    queue_rad: np.ndarray,
+    head: np.ndarray,
+    ctrl: np.ndarray,
+) -> None:
+    """``decode``, then ``actuate`` on the decoded targets: the step's action side in one call
+    (one dispatch and fewer arrays to unbox than two) when no safety filter sits between them.
+    ``cmd``: the n joints' lower and upper limits, then the ``C_*`` slots."""
+    n = applied_rad.shape[0]
+    o = 2 * n
+    decode(
+        action, a_out, previous_rad, targets_out, cmd[:n], cmd[n:o], max_delta,
+        cmd[o + C_DECODE_GRIP : o + C_SERVO],
+    )  # fmt: skip
+    actuate(
+        targets_out, noise, noise_rad, cmd[o + C_SERVO : o + C_CTRL_GRIP], applied_rad,
+        queue_rad, head, ctrl, cmd[o + C_CTRL_GRIP : o + N_CMD],
+    )  # fmt: skip
+
+
 # ---- observation side -------------------------------------------------------------------------
 # Parameter slots of ``observe``'s ``prm`` (float64) and ``state`` (int64) arrays.
 P_JOINT_NOISE, P_RESOLUTION, P_INV_RESOLUTION, P_PX_NOISE = 0, 1, 2, 3
@@ -153,13 +191,22 @@ P_OCC_RADIUS, P_OCC_PROB, P_DROPOUT, P_DT = 4, 5, 6, 7
 P_GRIP_CLOSED, P_GRIP_OPEN, P_GRIP_GAP, P_GRIP_READ = 8, 9, 10, 11
 P_HOLD_MARGIN, P_BLIND_CAP, P_SIGN0, P_SIGN1, P_SIGN2 = 12, 13, 14, 15, 16
 P_UPPER, P_FORE, P_TOOL_FWD, P_BASE_H, P_TOOL_DOWN = 17, 18, 19, 20, 21
-P_GOAL_RULE, P_OCCLUDABLE, N_PRM = 22, 23, 24
+P_GOAL_RULE, P_OCCLUDABLE, P_SHAPING = 22, 23, 24
+# the sensor model's vectors: position bias, σ coefficients, camera position, its z axis and
+# base_R_cam (row-major), then the joint readings' biases (one per reading) to the end
+P_POS_BIAS, P_SIGMA, P_CAM_P, P_CAM_Z, P_CAM_R, P_JOINT_BIAS = 25, 28, 31, 34, 37, 46
+N_PRM = P_JOINT_BIAS  # ``prm`` has N_PRM + (number of joint readings) slots
 S_DELAY, S_COUNT, S_SEEN, N_STATE = 0, 1, 2, 3
 
 # How a task's observed goal is formed (``Task.goal_rule``): (achieved, desired).
 GOAL_RULES = {
     "tool_to_point": 0,  # the tool estimate, the first task point's estimate
     "object_to_goal": 1,  # the grasp-aware object estimate, the task's goal (``Task.obs_aux[0]``)
+}
+# A task's compiled shaping (``Task.shaping_rule``), from ``Task.shaping_ids``/``shaping_prm``.
+SHAPING_RULES = {
+    "none": 0,  # ``Task.shaping`` runs in Python (0 unless the task overrides it)
+    "grasp_lift": 1,  # ``grasp_shaping``: ids [object geom, fingers...], prm ``GRASP_PRM``
 }
 # Observation fields the kernel fills, by name (``ObsField.name``).
 FIELDS = {
@@ -178,6 +225,27 @@ FIELDS = {
 }
 
 
+def put_camera(prm: np.ndarray, sensors: SensorModel) -> None:
+    """The stereo rig's fixed pose (``SensorModel``'s camera) into ``observe``'s ``prm``."""
+    prm[P_CAM_P : P_CAM_P + 3] = sensors.cam_p_m
+    prm[P_CAM_Z : P_CAM_Z + 3] = sensors.cam_z
+    prm[P_CAM_R : P_CAM_R + 9] = sensors.base_R_cam.reshape(-1)
+
+
+def put_sensing(prm: np.ndarray, sensors: SensorModel) -> None:
+    """An episode's sensing parameters (``SensorModel.configure``) into ``observe``'s ``prm``."""
+    prm[P_JOINT_NOISE] = sensors.joint_noise
+    prm[P_RESOLUTION] = sensors.resolution_rad
+    prm[P_INV_RESOLUTION] = sensors.inv_resolution
+    prm[P_PX_NOISE] = sensors.px_noise
+    prm[P_OCC_RADIUS] = sensors.occlusion_radius_m
+    prm[P_OCC_PROB] = sensors.occlusion_prob
+    prm[P_DROPOUT] = sensors.dropout_prob
+    prm[P_POS_BIAS : P_POS_BIAS + 3] = sensors.pos_bias
+    prm[P_SIGMA : P_SIGMA + 3] = sensors.sigma_coef
+    prm[P_JOINT_BIAS:] = sensors.joint_bias
+
+
 @_jit
 def _put(obs: np.ndarray, start: int, x0: float, x1: float, x2: float) -> None:
     obs[start] = np.float32(x0)
@@ -192,12 +260,6 @@ def observe(
     tool_m: np.ndarray,
     true_points_m: np.ndarray,
     prm: np.ndarray,
-    joint_bias_rad: np.ndarray,
-    pos_bias_m: np.ndarray,
-    sigma_coef: np.ndarray,
-    cam_p_m: np.ndarray,
-    cam_z: np.ndarray,
-    base_R_cam: np.ndarray,
     noise: np.ndarray,
     uniforms: np.ndarray,
     last_seen_m: np.ndarray,
@@ -214,15 +276,20 @@ def observe(
     true_desired_m: np.ndarray,
     obs: np.ndarray,
     goals_out: np.ndarray,
-) -> float:
-    """Sense, observe, and judge one step; returns the true achieved-to-desired distance.
+    contact_geoms: np.ndarray,
+    shaping_ids: np.ndarray,
+    shaping_prm: np.ndarray,
+) -> tuple[float, float]:
+    """Sense, observe, and judge one step; returns the true achieved-to-desired distance and
+    the task's compiled shaping (``prm[P_SHAPING]``, ``SHAPING_RULES``; 0.0 without one).
 
     ``qadr``: the joints' qpos addresses, then (with a gripper reading) the first finger's.
     ``noise``: this step's standard normals (joints, then 3 per point: the tool, the task's);
     ``uniforms`` (2, k): the occlusion draws (unused on the first call after a reset).
     ``layout`` rows: (``FIELDS`` code, start, size). ``goals_out`` (2, 3): achieved, desired.
+    ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs, read by the shaping rule only.
     """
-    n_r = joint_bias_rad.shape[0]
+    n_r = qadr.shape[0]
     n_j = n_r - 1 if prm[P_GRIP_READ] > 0.0 else n_r
     k = true_points_m.shape[0]
     joints = np.empty(n_r)
@@ -237,7 +304,7 @@ def observe(
         frac = _clip(2 * qpos[qadr[n_j]] / prm[P_GRIP_GAP], 0.0, 1.0)
         joints[n_j] = closed + frac * (opened - closed)
     for i in range(n_r):
-        v = joints[i] + joint_bias_rad[i]
+        v = joints[i] + prm[P_JOINT_BIAS + i]
         if jn > 0:
             v = v + jn * noise[i]
         if res > 0:
@@ -247,22 +314,22 @@ def observe(
     for r in range(k + 1):
         p = tool_m if r == 0 else true_points_m[r - 1]
         for c in range(3):
-            points[r, c] = p[c] + pos_bias_m[c]
+            points[r, c] = p[c] + prm[P_POS_BIAS + c]
         if px > 0:
             depth = _gemv3(
-                p[0] - cam_p_m[0],
-                p[1] - cam_p_m[1],
-                p[2] - cam_p_m[2],
-                cam_z[0],
-                cam_z[1],
-                cam_z[2],
+                p[0] - prm[P_CAM_P],
+                p[1] - prm[P_CAM_P + 1],
+                p[2] - prm[P_CAM_P + 2],
+                prm[P_CAM_Z],
+                prm[P_CAM_Z + 1],
+                prm[P_CAM_Z + 2],
             )
             z = noise[n_r + 3 * r : n_r + 3 * r + 3]
-            m0 = z[0] * (depth * sigma_coef[0])
-            m1 = z[1] * (depth * sigma_coef[1])
-            m2 = z[2] * (depth * sigma_coef[2] * depth)
+            m0 = z[0] * (depth * prm[P_SIGMA])
+            m1 = z[1] * (depth * prm[P_SIGMA + 1])
+            m2 = z[2] * (depth * prm[P_SIGMA + 2] * depth)
             for c in range(3):
-                R = base_R_cam[c]
+                R = prm[P_CAM_R + 3 * c : P_CAM_R + 3 * c + 3]
                 points[r, c] = points[r, c] + _fma(m2, R[2], _fma(m1, R[1], m0 * R[0]))
     # --- SensorModel.occlude: objects the fingers hide hold their last estimate
     if prm[P_OCCLUDABLE] > 0.0:
@@ -369,7 +436,14 @@ def observe(
     x0 = true_achieved_m[0] - true_desired_m[0]
     x1 = true_achieved_m[1] - true_desired_m[1]
     x2 = true_achieved_m[2] - true_desired_m[2]
-    return math.sqrt(_dot3(x0, x1, x2, x0, x1, x2))
+    shaped = 0.0
+    if prm[P_SHAPING] == 1.0:  # the task's first point is the object it grasps
+        shaped = grasp_shaping(tool_m, true_points_m[0], contact_geoms, shaping_ids, shaping_prm)
+    return math.sqrt(_dot3(x0, x1, x2, x0, x1, x2)), shaped
+
+
+# Slots of ``grasp_shaping``'s ``prm``.
+G_REST_Z, G_REACH_PER_M, G_BONUS, G_LIFT_PER_M, G_LIFT_CAP_M, N_GRASP_PRM = 0, 1, 2, 3, 4, 5
 
 
 @_jit
@@ -377,26 +451,23 @@ def grasp_shaping(
     tool_m: np.ndarray,
     object_m: np.ndarray,
     contact_geoms: np.ndarray,
-    object_geom: int,
-    finger_geoms: np.ndarray,
-    rest_z_m: float,
-    weights: np.ndarray,
+    ids: np.ndarray,
+    prm: np.ndarray,
 ) -> float:
     """Pick's staged shaping (``PickTask.shaping``): approach, both fingers on the object, lift.
-    ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs; ``weights``: [reach per m, grasp bonus,
-    lift per m, lift cap m]."""
+    ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs; ``ids``: [object geom, finger geoms...];
+    ``prm``: the ``G_*`` slots (the object's resting height, the weights, the lift cap)."""
     v0, v1, v2 = tool_m[0] - object_m[0], tool_m[1] - object_m[1], tool_m[2] - object_m[2]
-    reach = -weights[0] * math.sqrt(_dot3(v0, v1, v2, v0, v1, v2))
-    for f in range(finger_geoms.shape[0]):
+    reach = -prm[G_REACH_PER_M] * math.sqrt(_dot3(v0, v1, v2, v0, v1, v2))
+    object_geom = ids[0]
+    for f in range(1, ids.shape[0]):
         touching = False
         for c in range(contact_geoms.shape[0]):
             g1, g2 = contact_geoms[c, 0], contact_geoms[c, 1]
-            if (g1 == object_geom and g2 == finger_geoms[f]) or (
-                g2 == object_geom and g1 == finger_geoms[f]
-            ):
+            if (g1 == object_geom and g2 == ids[f]) or (g2 == object_geom and g1 == ids[f]):
                 touching = True
                 break
         if not touching:
             return reach
-    lift = _clip(object_m[2] - rest_z_m, 0.0, weights[3])
-    return reach + weights[1] + weights[2] * lift
+    lift = _clip(object_m[2] - prm[G_REST_Z], 0.0, prm[G_LIFT_CAP_M])
+    return reach + prm[G_BONUS] + prm[G_LIFT_PER_M] * lift

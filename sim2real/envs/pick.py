@@ -196,6 +196,7 @@ class PickTask(Task):
     goal_rule = "object_to_goal"
     hold_margin_rad = HOLD_MARGIN_RAD
     blind_cap_s = BLIND_CAP_S
+    shaping_rule = "grasp_lift"  # ``shaping``, compiled into the step's observation call
 
     def __init__(self) -> None:
         super().__init__()
@@ -207,9 +208,13 @@ class PickTask(Task):
         self._cube_xpos = np.zeros(3)  # set with the ids at the first reset
         self._cube_points = np.zeros((1, 3))
         self._placed = np.zeros(3)  # x, y (m), yaw (rad): where ``reset`` put the cube
-        self._shaping_weights = np.array(
-            [REACH_WEIGHT_PER_M, GRASP_BONUS, LIFT_WEIGHT_PER_M, LIFT_M]
-        )
+        # ``fused.grasp_shaping``'s inputs: [cube geom, finger geoms] (at the first reset) and
+        # the ``fused.G_*`` slots (the resting height at every reset)
+        self.shaping_prm = np.zeros(fused.N_GRASP_PRM)
+        self.shaping_prm[fused.G_REACH_PER_M] = REACH_WEIGHT_PER_M
+        self.shaping_prm[fused.G_BONUS] = GRASP_BONUS
+        self.shaping_prm[fused.G_LIFT_PER_M] = LIFT_WEIGHT_PER_M
+        self.shaping_prm[fused.G_LIFT_CAP_M] = LIFT_M
 
     def reset(self, env: Arm3Env, rng: np.random.Generator) -> None:
         m = env.model
@@ -219,6 +224,7 @@ class PickTask(Task):
             self._cube_geom = m.geom(names.CUBE_GEOM).id
             self._finger_geoms = frozenset(m.geom(g).id for g in names.FINGER_GEOMS)
             self._finger_ids = np.array(sorted(self._finger_geoms), dtype=np.int32)
+            self.shaping_ids = np.array([self._cube_geom, *self._finger_ids], dtype=np.int32)
             # views of MuJoCo's buffer (valid while the env's data lives): read every step
             self._cube_xpos = env.data.xpos[self._cube_body]
             self._cube_points = env.data.xpos[self._cube_body : self._cube_body + 1]
@@ -230,6 +236,7 @@ class PickTask(Task):
         q[a : a + 3] = (xy[0], xy[1], half)
         q[a + 3 : a + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         self.rest_z_m = half
+        self.shaping_prm[fused.G_REST_Z] = half
         self._placed = np.array([xy[0], xy[1], yaw])
         self.goal_m = lift_goal(np.array([xy[0], xy[1], half]))
         self.obs_aux[0] = self.goal_m
@@ -330,11 +337,15 @@ class PickTask(Task):
         lift goal): holding the cube 5 cm up, the shaping pays 1.0 per step against 0.5 on the
         table, and a cube knocked upwards without a grasp earns nothing from it.
 
-        Compiled (``fused.grasp_shaping``, every step); ``is_grasped`` and ``lift_m`` are its
-        reference (``tests/sim2real/envs/test_fused.py``)."""
+        Compiled (``fused.grasp_shaping``; the state env runs it inside its observation call,
+        ``shaping_rule``); ``is_grasped`` and ``lift_m`` are its reference
+        (``tests/sim2real/envs/test_fused.py``)."""
         return float(
             fused.grasp_shaping(
-                env.ee_position(), self._cube_xpos, env.data.contact.geom,
-                self._cube_geom, self._finger_ids, self.rest_z_m, self._shaping_weights,
+                env.ee_position(),
+                self._cube_xpos,
+                env.data.contact.geom,
+                self.shaping_ids,
+                self.shaping_prm,
             )
-        )  # fmt: skip
+        )

@@ -84,6 +84,55 @@ def test_actuate_is_the_servo_model() -> None:
             assert ctrl[3] == gripper_rad_to_finger_m(SPEC, float(sent[3]))
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_command_is_decode_then_actuate(dtype: type) -> None:
+    """The env's one-call action side (no safety filter) writes what ``decode`` and then
+    ``actuate`` on the decoded targets write, state and all, across servo settings."""
+    rng = np.random.default_rng(2)
+    g = SPEC.gripper
+    assert g is not None
+    n = SPEC.n_joints
+    lo, hi = SPEC.lower_rad, SPEC.upper_rad
+    decode_grip = np.array([1.0, g.closed_rad, g.open_rad])
+    ctrl_grip = np.array([1.0, g.closed_rad, g.open_rad, g.max_gap_m])
+    md = dtype(0.1) if dtype is np.float32 else 0.1
+    for case in range(12):
+        servo_prm = np.array([rng.uniform(0.01, 0.2), rng.uniform(0, 0.02), 0.0016, 625.0])
+        servo_prm[2:] = (0.0, 0.0) if case % 3 == 0 else servo_prm[2:]
+        cmd = np.concatenate([lo, hi, decode_grip, servo_prm, ctrl_grip])
+        assert len(cmd) == 2 * n + fused.N_CMD
+        latency, noise_rad = case % 3, 0.0 if case % 2 else 0.005
+        start = rng.uniform(-0.5, 0.5, n)
+        states = [
+            (start.copy(), np.tile(start, (latency, 1)), np.zeros(1, dtype=np.int64))
+            for _ in range(2)
+        ]
+        prev = np.append(start, g.open_rad)
+        for _ in range(60):
+            action = rng.uniform(-1.5, 1.5, 4).astype(dtype)
+            noise = rng.standard_normal(n)
+            outs = []
+            for k, (applied, queue, head) in enumerate(states):
+                a, targets, ctrl = np.empty_like(action), np.empty(n + 1), np.zeros(n + 1)
+                if k == 0:
+                    fused.decode(action, a, prev, targets, lo, hi, md, decode_grip)
+                    fused.actuate(
+                        targets, noise, noise_rad, servo_prm, applied, queue, head, ctrl,
+                        ctrl_grip,
+                    )  # fmt: skip
+                else:
+                    fused.command(
+                        action, a, prev, targets, md, cmd, noise, noise_rad, applied, queue,
+                        head, ctrl,
+                    )  # fmt: skip
+                outs.append((a, targets, ctrl))
+            for want, got in zip(outs[0], outs[1], strict=True):
+                np.testing.assert_array_equal(got, want)
+            for want, got in zip(states[0], states[1], strict=True):
+                np.testing.assert_array_equal(got, want)
+            prev = outs[0][1]
+
+
 def _sensor_pair(rng: np.random.Generator, n_r: int) -> tuple[SensorModel, SensorModel]:
     cam = RigSpec().cameras[0]
     T = cam.base_T_cam()
@@ -130,20 +179,16 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
     )
     g = SPEC.gripper
     assert g is not None
+    no_contacts = np.zeros((1, 4), dtype=np.int32)[:, ::2]
+    no_ids, no_prm = np.zeros(0, dtype=np.int32), np.zeros(0)
     rng = np.random.default_rng([len(task.name), goal_mode])
     dt = 0.05
     for _episode in range(12):
         ref, fast = _sensor_pair(rng, n_r)
         r_ref, r_fast = np.random.default_rng(3), np.random.default_rng(3)
-        prm = np.zeros(fused.N_PRM)
-        prm[fused.P_JOINT_NOISE] = fast.joint_noise
-        prm[fused.P_RESOLUTION], prm[fused.P_INV_RESOLUTION] = (
-            fast.resolution_rad,
-            fast.inv_resolution,
-        )
-        prm[fused.P_PX_NOISE] = fast.px_noise
-        prm[fused.P_OCC_RADIUS] = fast.occlusion_radius_m
-        prm[fused.P_OCC_PROB], prm[fused.P_DROPOUT] = fast.occlusion_prob, fast.dropout_prob
+        prm = np.zeros(fused.N_PRM + n_r)
+        fused.put_camera(prm, fast)
+        fused.put_sensing(prm, fast)
         prm[fused.P_DT] = dt
         prm[fused.P_GRIP_CLOSED : fused.P_GRIP_READ + 1] = (
             g.closed_rad, g.open_rad, g.max_gap_m, float(task.uses_gripper),
@@ -212,15 +257,15 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
                 else np.zeros((2, 1))
             )
             obs = np.empty(builder.size, dtype=np.float32)
-            d = fused.observe(
-                qpos, qadr, tool, point[None], prm, fast.joint_bias, fast.pos_bias,
-                fast.sigma_coef, fast.cam_p_m, fast.cam_z, fast.base_R_cam, noise, uniforms,
-                last_seen, blind_steps, state, *hist, targets, prev_action, aux, layout, true_a,
-                true_d, obs, goals,
+            d, shaped = fused.observe(
+                qpos, qadr, tool, point[None], prm, noise, uniforms, last_seen, blind_steps,
+                state, *hist, targets, prev_action, aux, layout, true_a, true_d, obs, goals,
+                no_contacts, no_ids, no_prm,
             )  # fmt: skip
             np.testing.assert_array_equal(obs, want)
             np.testing.assert_array_equal(goals, np.stack([achieved, desired]))
             assert d == np.sqrt(diff @ diff)
+            assert shaped == 0.0  # no shaping rule in prm
 
 
 def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
@@ -236,7 +281,12 @@ def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
             for _ in range(30):
                 a = rng.uniform(-1, 1, 4).astype(np.float32)
                 a[3] = -1.0 if rng.random() < 0.8 else a[3]
-                env.step(a)
+                _, reward, _, _, info = env.step(a)
+                # the step's shaping is the kernel inside its observation call: the same value
+                d = info["distance_m"]
+                assert reward == float(
+                    u._reward_fn(d, d < u.task.success_threshold_m)
+                ) + u.task.shaping(u)
                 v = u.ee_position() - u.task.cube_position(u)
                 want = -2.0 * float(np.linalg.norm(v))
                 if u.task.is_grasped(u):
