@@ -11,7 +11,8 @@ A cell is one ``sim2real adapt POLICY --backend mock --plant PLANT --episodes N 
 (subprocess, into ``runs/bench-adapt/<policy>-<plant>``; re-running continues a cell), whose
 zero-shot and evaluate stages are the mock successes, and two ``evaluate`` runs in the policy's
 own simulator with DR ``none`` over N held-out episodes: the original policy (its spec) and the
-adapted one (the fitted spec it carries) are the denominators. Wall time is the sum of adapt's
+adapted one (the fitted spec it carries) are the denominators. The mock deploys replay those
+held-out episodes' objects (``--placements held-out``), so each ratio is paired. Wall time is the sum of adapt's
 stages (zero-shot deploy, recording, fits, fine-tune, export, evaluate deploy); the sim
 evaluations are not part of adapt.
 
@@ -61,11 +62,18 @@ def sim_success(policy: str | Path, episodes: int) -> dict[str, Any]:
 
 
 def run_adapt(
-    policy: str, plant: str, out: Path, episodes: int, minutes: float, watchdog_s: float | None
+    policy: str,
+    plant: str,
+    out: Path,
+    episodes: int,
+    minutes: float,
+    watchdog_s: float | None,
+    placements: str,
 ) -> dict[str, Any]:
     cmd = [
         sys.executable, "-m", "sim2real", "adapt", policy, "--backend", "mock", "--plant", plant,
         "--out", str(out), "--episodes", str(episodes), "--minutes", str(minutes), "--json",
+        "--placements", placements,
     ]  # fmt: skip
     if watchdog_s is not None:
         cmd += ["--watchdog-s", str(watchdog_s)]
@@ -103,13 +111,18 @@ def main() -> int:
         help="the mock's watchdog (default: the spec's 0.25 s); longer on a shared machine, where "
         "a start-up pause can trip it: the table measures transfer, bench/deploy_mock.py timing",
     )
+    p.add_argument(
+        "--placements", default="held-out", choices=("held-out", "loop"),
+        help="the mock deploys' objects: the held-out episodes the sim figures are measured on "
+        "(paired, default) or the loop's own draws",
+    )  # fmt: skip
     a = p.parse_args()
     failed = False
     for policy in a.policies:
         sim0 = sim_success(policy, a.episodes)
         for plant in a.plants:
             out = a.root / f"{Path(policy).name}-{plant}-n{a.episodes}"
-            rows = run_adapt(policy, plant, out, a.episodes, a.minutes, a.watchdog_s)
+            rows = run_adapt(policy, plant, out, a.episodes, a.minutes, a.watchdog_s, a.placements)
             zero, after = rows["zero_shot"], rows["evaluate"]
             sim1 = sim_success(out / "policy.onnx", a.episodes)
             stage_s = {
@@ -125,6 +138,7 @@ def main() -> int:
                 "episodes": a.episodes,
                 "minutes": a.minutes,
                 "watchdog_s": a.watchdog_s,
+                "placements": a.placements,
                 "sim_zero_shot": sim0,
                 "mock_zero_shot": {
                     "success_rate": zero["success_rate"],

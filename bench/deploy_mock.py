@@ -6,7 +6,8 @@ Per policy (a shipped name or a run dir), JSON lines:
 * ``deploy_{sim,mock}_success`` and each task's figures (pick: grasped, lift, blind time);
 * ``sim_vs_env_success`` and ``mock_vs_sim_success`` ratios (targets ≥ 0.9 each).
   Paired by default: the sim and mock backends replay the placements of the env's held-out
-  episodes under DR ``none`` (``Task.placement`` → ``LoopConfig.placements``), so every ratio
+  episodes under DR ``none`` (``held_out_placements`` → ``LoopConfig.placements``, as
+  ``sim2real deploy --placements held-out`` does), so every ratio
   compares the same objects, and ``*_pairs`` count both / first only / second only / neither.
   (At p ≈ 0.3, two independent 100-episode samples cannot resolve a 0.9 ratio: σ ≈ 0.2.)
   ``--unpaired``: the loop draws its own placements, as ``sim2real deploy`` does;
@@ -75,24 +76,16 @@ def breakdown(log_path: Path, nominal_s: float, over_ms: float = 5.0) -> dict[st
     return out
 
 
-def env_episodes(target: Any, dr: str, seeds: list[int]) -> tuple[dict[str, Any], list[Any]]:
-    """``evaluate``'s figures on ``seeds`` and each episode's placement (``Task.placement``)."""
+def env_episodes(target: Any, dr: str, seeds: list[int]) -> tuple[dict[str, Any], list[bool]]:
+    """``evaluate``'s figures on ``seeds`` and each episode's outcome, for the paired tables."""
     from sim2real.evaluate.core import report
     from sim2real.evaluate.rollout import run_episodes
 
-    placements: list[dict[str, Any]] = []
-
-    def on_step(_slot: int, env: Any) -> None:
-        u = env.unwrapped
-        if u.steps == 0:  # just reset: slots start their seeds in order
-            placements.append(u.task.placement(u))
-
     dr_config = target.dr(dr)
     t0 = time.perf_counter()
-    result = run_episodes(target.policy, target.env_factory(dr_config), seeds, on_step=on_step)
-    return report(target, dr_config, seeds, result, time.perf_counter() - t0), [
-        (e.success, placements[i]) for i, e in enumerate(result.episodes)
-    ]
+    result = run_episodes(target.policy, target.env_factory(dr_config), seeds)
+    figures = report(target, dr_config, seeds, result, time.perf_counter() - t0)
+    return figures, [e.success for e in result.episodes]
 
 
 def pairs(first: list[bool], second: list[bool]) -> dict[str, int]:
@@ -110,6 +103,7 @@ def main() -> None:
     from sim2real.deploy.loop import LoopConfig
     from sim2real.deploy.runner import DeployOptions, deploy
     from sim2real.evaluate import EvalTarget
+    from sim2real.evaluate.core import held_out_placements
 
     torch.set_num_threads(1)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -172,14 +166,12 @@ def main() -> None:
             target = EvalTarget.load(ref)
             seeds = target.held_out_seeds(args.episodes)
             for dr in ("default", "none"):
-                ev, episodes = env_episodes(target, dr, seeds)
+                ev, outcomes[f"env_{dr}"] = env_episodes(target, dr, seeds)
                 env[dr] = ev["success_rate"]
                 emit(f"env_success_dr_{dr}", ev["success_rate"], "fraction", policy=ref,
                      ci95=ev["success_rate_wilson95"], episodes=args.episodes, machine=machine)  # fmt: skip
-                if dr == "none":  # the nominal model, as the sim backend runs
-                    outcomes["env"] = [ok for ok, _ in episodes]
-                    if not args.unpaired:
-                        placements = tuple(p for _, p in episodes)
+            if not args.unpaired:  # DR none's objects: the nominal model, as the sim backend runs
+                placements = tuple(held_out_placements(target, args.episodes))
         rates = {}
         for backend in backends:
             t0 = time.perf_counter()
@@ -210,8 +202,8 @@ def main() -> None:
             like = rates["sim"] / env["none"] if env["none"] > 0 else float("nan")
             emit("sim_vs_env_none_success", round(like, 3), "ratio", policy=ref, target=0.9,
                  passed=like >= 0.9, paired=paired)  # fmt: skip
-            if paired and len(outcomes["sim"]) == len(outcomes["env"]):
-                emit("sim_vs_env_none_pairs", pairs(outcomes["env"], outcomes["sim"]), "",
+            if paired and len(outcomes["sim"]) == len(outcomes["env_none"]):
+                emit("sim_vs_env_none_pairs", pairs(outcomes["env_none"], outcomes["sim"]), "",
                      policy=ref, first="env DR none", second="sim")  # fmt: skip
         if {"sim", "mock"} <= set(rates):
             ratio = rates["mock"] / rates["sim"] if rates["sim"] > 0 else float("nan")

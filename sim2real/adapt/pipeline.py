@@ -81,6 +81,7 @@ class AdaptOptions:
     watchdog_s: float | None = None
     start_timeout_s: float = 10.0
     seed: int = 1_000_000
+    placements: str = "loop"  # or "held-out": the deploys replay evaluate's placements
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -97,6 +98,10 @@ class AdaptOptions:
                 )
             if self.watchdog_s is not None:
                 raise ConfigError("--watchdog-s is for --backend mock: a real arm keeps its spec's")
+            if self.placements != "loop":
+                raise ConfigError(
+                    f"--placements {self.placements}: on a real arm a person places the objects"
+                )
         if not (math.isfinite(self.minutes) and self.minutes > 0):
             raise ConfigError(f"--minutes must be > 0, got {self.minutes!r}")
         if self.finetune_steps is not None and self.finetune_steps < 1:
@@ -251,6 +256,7 @@ class Adapter:
     def _deploy(self, policy: str, spec: ArmSpec, calibration: Path | None) -> dict[str, Any]:
         from calibration.registration import load_base_T_cam
         from sim2real.deploy.loop import LoopConfig
+        from sim2real.deploy.replayed import placements
         from sim2real.deploy.runner import DeployOptions, deploy
 
         o = self.opts
@@ -267,6 +273,8 @@ class Adapter:
             watchdog_s=o.watchdog_s,
         )
         config = LoopConfig(
+            # the original policy's held-out episodes, before and after: the same objects
+            placements=placements(o.placements, o.policy, o.episodes),
             rate_hz=self._control_hz(),
             episodes=o.episodes,
             seed=o.seed,

@@ -62,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--start-timeout", type=float, default=10.0, help="seconds an episode waits for its objects"
     )
     parser.add_argument("--seed", type=int, default=1_000_000, help="deploy placement seed")
+    parser.add_argument(
+        "--placements", default="loop", choices=("loop", "held-out"),
+        help="mock: the deploys' objects from the loop's draws (--seed) or the policy's held-out "
+        "evaluation episodes (the same as evaluate --dr none places)",
+    )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="one JSON line per stage")
 
 
@@ -106,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
         watchdog_s=args.watchdog_s,
         start_timeout_s=args.start_timeout,
         seed=args.seed,
+        placements=args.placements,
     )
 
     def report(stage: str, figures: dict[str, Any]) -> None:

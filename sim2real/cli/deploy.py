@@ -48,6 +48,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-fps", type=float, default=30.0, help="mock cameras' frame rate")
     parser.add_argument("--seed", type=int, default=1_000_000, help="placement seed (held out)")
     parser.add_argument(
+        "--placements", default="loop", choices=("loop", "held-out"),
+        help="sim/mock: where the objects go: the loop's own draws (--seed), or the policy's "
+        "held-out evaluation episodes (evaluate --dr none places the same objects)",
+    )  # fmt: skip
+    parser.add_argument(
         "--start-timeout", type=float, default=10.0,
         help="seconds an episode waits for its objects to be seen and still",
     )  # fmt: skip
@@ -81,6 +86,7 @@ def _load_base_T_cam(path: Path) -> np.ndarray:
 def run(args: argparse.Namespace) -> int:
     from hardware.spec import load_spec
     from sim2real.deploy.loop import LoopConfig
+    from sim2real.deploy.replayed import placements
     from sim2real.deploy.runner import DeployOptions, deploy
 
     logging.basicConfig(
@@ -111,7 +117,10 @@ def run(args: argparse.Namespace) -> int:
         watchdog_s=args.watchdog_s,
         sim_clock=args.sim_clock,
     )
+    if args.placements != "loop" and args.backend == "serial":
+        raise ConfigError(f"--placements {args.placements}: on a real arm a person places them")
     config = LoopConfig(
+        placements=placements(args.placements, args.policy, args.episodes),
         rate_hz=args.rate,
         episodes=args.episodes,
         episode_steps=args.steps,

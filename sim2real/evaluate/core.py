@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from hardware.spec import ArmSpec
 from sim2real.errors import ConfigError
@@ -85,6 +86,27 @@ class EvalTarget:
         if clash:  # only possible for a hand-edited config
             raise ConfigError(f"evaluation seeds {sorted(clash)[:3]} were used in training")
         return seeds
+
+
+def held_out_placements(
+    target: EvalTarget, episodes: int, seed_offset: int = 0, dr: str = "none"
+) -> list[dict[str, np.ndarray]]:
+    """The objects of ``evaluate``'s held-out episodes (``Task.placement`` after each seeded
+    reset; no policy runs). A deploy that replays them (``LoopConfig.placements``) is compared
+    with ``evaluate`` on the same placements: at a pick policy's 30 % success, two independent
+    100-episode samples cannot resolve a 0.9 ratio."""
+    env = target.env_factory(target.dr(dr))()
+    try:
+        u = env.unwrapped
+        if not hasattr(u, "task"):
+            raise ConfigError(f"{target.env_id} has no task placements to replay")
+        out = []
+        for seed in target.held_out_seeds(episodes, seed_offset):
+            env.reset(seed=seed)
+            out.append(u.task.placement(u))
+        return out
+    finally:
+        env.close()
 
 
 def evaluate(

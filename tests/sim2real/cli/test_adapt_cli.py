@@ -214,3 +214,14 @@ def test_a_folder_of_another_adaptation_is_not_mixed_in(
     (out / "status.json").write_text(json.dumps(status))
     argv = ["adapt", "reach-ppo", "--plant", "moderate", "--out", str(out)]
     _one_line_error(capsys, argv, "plant='hard'")
+
+
+def test_replayed_placements_are_refused_on_a_real_arm(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "adapt"
+    argv = ["adapt", "reach-ppo", "--backend", "serial", "--port", "/dev/null",
+            "--calibration", str(tmp_path / "s.yaml"), "--registration", str(tmp_path / "r.yaml"),
+            "--placements", "held-out", "--out", str(out)]  # fmt: skip
+    _one_line_error(capsys, argv, "--placements held-out", "a person places")
+    assert not out.exists()
