@@ -529,7 +529,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._prm = prm
         self._obs_state = np.zeros(fused.N_STATE, dtype=np.int64)
         k = self.task.n_points
-        self._uniforms = np.zeros((2, k))  # the occlusion draws, refilled each step
+        self._rng_binding = fused.RngBinding()  # the generator ``observe`` draws from
         self._last_seen = np.zeros((k, 3))
         self._blind_steps = np.zeros(k)
         self._goals = np.zeros((2, 3))
@@ -546,7 +546,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         )
         fused.put_sensing(self._prm, sensors)
         delay, k = sensors.delay_steps, self.task.n_points
-        self._obs_state[:] = (delay, 0, 0)
+        self._obs_state[: fused.S_RNG_NEXT] = (delay, 0, 0)
         self._hist_joints = np.zeros((delay + 1, self._n_readings))
         self._hist_points = np.zeros((delay + 1, k + 1, 3))
         self._hist_blind = np.zeros((delay + 1, k))
@@ -566,16 +566,15 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         state = self._obs_state
         points = task.true_points(self)
         noise = self.sensors.draw(len(points) + 1, rng)
-        uniforms = self._uniforms
-        if task.occludable and state[fused.S_SEEN]:
-            rng.random(out=uniforms)  # rng.random((2, k))'s draws, into the buffer
+        if rng is not self._rng_binding.rng:  # the kernel draws the occlusion uniforms from it
+            self._rng_binding.bind(state, rng)
         contacts = self.data.contact.geom if self._shaping_compiled else self._no_contacts
         vec = np.empty(self.builder.size, dtype=np.float32)
         d, shaped = fused.observe(
-            self._qpos, self._obs_qadr, self._tool_xpos, points, self._prm, noise, uniforms,
-            self._last_seen, self._blind_steps, state, self._hist_joints, self._hist_points,
-            self._hist_blind, self._targets, self._prev_action, task.obs_aux, self._layout,
-            achieved, desired, vec, self._goals, contacts, task.shaping_ids, task.shaping_prm,
+            self._qpos, self._obs_qadr, self._tool_xpos, points, self._prm, noise, self._last_seen,
+            self._blind_steps, state, self._hist_joints, self._hist_points, self._hist_blind,
+            self._targets, self._prev_action, task.obs_aux, self._layout, achieved, desired, vec,
+            self._goals, contacts, task.shaping_ids, task.shaping_prm,
         )  # fmt: skip
         if self.obs_mode == "goal":
             goals = self._goals.astype(np.float32)

@@ -14,7 +14,9 @@ kernel equal to its reference on random inputs:
 
 numpy hands 3-element dot products to OpenBLAS, whose kernels fuse multiply-adds: ``_dot3`` and
 friends reproduce those roundings with explicit FMAs. Random draws stay in numpy's Generator on
-the Python side, in the order and number the reference draws them, and come in as arrays.
+the Python side, in the order and number the reference draws them, and come in as arrays; the
+occlusion's uniform draws are made in ``observe`` from the env's generator's own bit generator
+(``RngBinding``: the same calls ``Generator.random`` makes, so the same values and state).
 
 Kernels are cached on disk (``cache=True``) so a test process loads them instead of compiling;
 where no cache directory is writable they compile per process.
@@ -22,12 +24,14 @@ where no cache directory is writable they compile per process.
 
 from __future__ import annotations
 
+import ctypes
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
+from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
@@ -53,6 +57,48 @@ def _fma_typing(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
 
 # fma(a, b, c) = a·b + c with one rounding (LLVM's fma), as OpenBLAS's kernels compute it
 _fma: Any = intrinsic(_fma_typing)
+
+
+def _next_double_typing(typingctx: Any, next_double: Any, state: Any) -> Any:
+    sig = types.float64(types.int64, types.int64)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        void_p = ir.IntType(8).as_pointer()
+        fn_t = ir.FunctionType(ir.DoubleType(), [void_p])
+        fn = builder.inttoptr(args[0], fn_t.as_pointer())
+        return builder.call(fn, [builder.inttoptr(args[1], void_p)])
+
+    return sig, codegen
+
+
+# next_double(state): a numpy bit generator's next double in [0, 1), through its C interface
+# (``BitGenerator.ctypes``; numpy's own way to draw from it in numba), addresses as integers so
+# the cached kernels hold no process's addresses
+_next_double: Any = intrinsic(_next_double_typing)
+
+
+class RngBinding:
+    """Which generator ``observe`` draws from: ``bind`` puts its bit generator's
+    ``next_double`` and state addresses into ``observe``'s ``state``. ``Generator.random`` fills
+    its output with exactly these calls, so the kernel's draws are ``rng.random``'s and leave
+    ``rng`` where they would. The binding keeps ``rng`` (so the addresses) alive; the owner
+    rebinds when its generator changes (``rng is not binding.rng``). A copy or an unpickled one
+    starts unbound: addresses belong to one process and one generator object."""
+
+    def __init__(self) -> None:
+        self.rng: np.random.Generator | None = None
+
+    def bind(self, state: np.ndarray, rng: np.random.Generator) -> None:
+        iface = rng.bit_generator.ctypes
+        state[S_RNG_NEXT] = ctypes.cast(iface.next_double, ctypes.c_void_p).value or 0
+        state[S_RNG_STATE] = iface.state_address
+        self.rng = rng
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> RngBinding:
+        return RngBinding()
+
+    def __reduce__(self) -> tuple[type[RngBinding], tuple[()]]:
+        return (RngBinding, ())
 
 
 @_jit
@@ -196,7 +242,9 @@ P_GOAL_RULE, P_OCCLUDABLE, P_SHAPING = 22, 23, 24
 # base_R_cam (row-major), then the joint readings' biases (one per reading) to the end
 P_POS_BIAS, P_SIGMA, P_CAM_P, P_CAM_Z, P_CAM_R, P_JOINT_BIAS = 25, 28, 31, 34, 37, 46
 N_PRM = P_JOINT_BIAS  # ``prm`` has N_PRM + (number of joint readings) slots
-S_DELAY, S_COUNT, S_SEEN, N_STATE = 0, 1, 2, 3
+# ``state``: the delay line's length and count, whether the points were seen since the reset, and
+# the generator the occlusion draws come from (``bind_rng``)
+S_DELAY, S_COUNT, S_SEEN, S_RNG_NEXT, S_RNG_STATE, N_STATE = 0, 1, 2, 3, 4, 5
 
 # How a task's observed goal is formed (``Task.goal_rule``): (achieved, desired).
 GOAL_RULES = {
@@ -261,7 +309,6 @@ def observe(
     true_points_m: np.ndarray,
     prm: np.ndarray,
     noise: np.ndarray,
-    uniforms: np.ndarray,
     last_seen_m: np.ndarray,
     blind_steps: np.ndarray,
     state: np.ndarray,
@@ -285,7 +332,8 @@ def observe(
 
     ``qadr``: the joints' qpos addresses, then (with a gripper reading) the first finger's.
     ``noise``: this step's standard normals (joints, then 3 per point: the tool, the task's);
-    ``uniforms`` (2, k): the occlusion draws (unused on the first call after a reset).
+    The occlusion draws, ``rng.random((2, k))``'s, come from the generator ``bind_rng`` put
+    into ``state`` (none on the first call after a reset, as ``SensorModel.occlude``).
     ``layout`` rows: (``FIELDS`` code, start, size). ``goals_out`` (2, 3): achieved, desired.
     ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs, read by the shaping rule only.
     """
@@ -340,6 +388,10 @@ def observe(
                 blind_steps[p] = 0.0
             state[S_SEEN] = 1
         else:
+            uniforms = np.empty((2, k))  # rng.random((2, k)): row by row
+            for i in range(2):
+                for p in range(k):
+                    uniforms[i, p] = _next_double(state[S_RNG_NEXT], state[S_RNG_STATE])
             for p in range(k):
                 d0 = true_points_m[p, 0] - tool_m[0]
                 d1 = true_points_m[p, 1] - tool_m[1]

@@ -5,6 +5,8 @@ values a seeded rollout happens to reach (limits, NaN, every DR setting)."""
 
 from __future__ import annotations
 
+import copy
+import pickle
 from typing import Any
 
 import numpy as np
@@ -202,7 +204,9 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
         prm[fused.P_GOAL_RULE] = fused.GOAL_RULES[task.goal_rule]
         prm[fused.P_OCCLUDABLE] = task.occludable
         delay = fast.delay_steps
-        state = np.array([delay, 0, 0], dtype=np.int64)
+        state = np.zeros(fused.N_STATE, dtype=np.int64)
+        state[fused.S_DELAY] = delay
+        fused.RngBinding().bind(state, r_fast)  # the occlusion draws, as ``occlude`` makes them
         hist = (np.zeros((delay + 1, n_r)), np.zeros((delay + 1, 2, 3)), np.zeros((delay + 1, 1)))
         last_seen, blind_steps = np.zeros((1, 3)), np.zeros(1)
         qadr = np.arange(n_r, dtype=np.int64)
@@ -251,14 +255,9 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             diff = true_a - true_d
 
             noise = fast.draw(2, r_fast)
-            uniforms = (
-                r_fast.random((2, 1))
-                if task.occludable and state[fused.S_SEEN]
-                else np.zeros((2, 1))
-            )
             obs = np.empty(builder.size, dtype=np.float32)
             d, shaped = fused.observe(
-                qpos, qadr, tool, point[None], prm, noise, uniforms, last_seen, blind_steps,
+                qpos, qadr, tool, point[None], prm, noise, last_seen, blind_steps,
                 state, *hist, targets, prev_action, aux, layout, true_a, true_d, obs, goals,
                 no_contacts, no_ids, no_prm,
             )  # fmt: skip
@@ -266,6 +265,19 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             np.testing.assert_array_equal(goals, np.stack([achieved, desired]))
             assert d == np.sqrt(diff @ diff)
             assert shaped == 0.0  # no shaping rule in prm
+            # both generators made the same draws: the kernel's through the bit generator
+            assert r_fast.bit_generator.state == r_ref.bit_generator.state
+
+
+def test_rng_binding_is_not_copied() -> None:
+    """A bound generator's addresses belong to one process and one object: a deep copy or an
+    unpickled binding starts unbound, so its env rebinds to its own generator."""
+    binding, state = fused.RngBinding(), np.zeros(fused.N_STATE, dtype=np.int64)
+    rng = np.random.default_rng(0)
+    binding.bind(state, rng)
+    assert binding.rng is rng and state[fused.S_RNG_STATE] != 0
+    assert copy.deepcopy(binding).rng is None
+    assert pickle.loads(pickle.dumps(binding)).rng is None
 
 
 def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
