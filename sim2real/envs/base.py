@@ -500,8 +500,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._no_noise = np.zeros(n_j)
         self._after_step = type(self.task).after_step is not Task.after_step
         grip_reading = self.task.uses_gripper
-        self._obs_qadr = np.append(self._qadr, self.twin.finger_qadr[:1] if grip_reading else [])
-        self._obs_qadr = self._obs_qadr.astype(np.int64)
+        obs_qadr = np.append(self._qadr, self.twin.finger_qadr[:1] if grip_reading else [])
         links, signs = spec.links, [j.sign for j in spec.joints[:3]]
         prm = np.zeros(fused.N_PRM + self._n_readings)
         prm[fused.P_DT] = self.control_dt_s
@@ -527,12 +526,8 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._no_contacts = np.zeros((1, 4), dtype=np.int32)[:, ::2]
         fused.put_camera(prm, self.sensors)
         self._prm = prm
-        self._obs_state = np.zeros(fused.N_STATE, dtype=np.int64)
-        k = self.task.n_points
+        self._obs_ints = fused.observe_ints(obs_qadr, self._layout)
         self._rng_binding = fused.RngBinding()  # the generator ``observe`` draws from
-        self._last_seen = np.zeros((k, 3))
-        self._blind_steps = np.zeros(k)
-        self._goals = np.zeros((2, 3))
 
     def _configure_fused(self) -> None:
         """The episode's servo and sensor parameters into the compiled step's arrays."""
@@ -546,10 +541,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         )
         fused.put_sensing(self._prm, sensors)
         delay, k = sensors.delay_steps, self.task.n_points
-        self._obs_state[: fused.S_RNG_NEXT] = (delay, 0, 0)
-        self._hist_joints = np.zeros((delay + 1, self._n_readings))
-        self._hist_points = np.zeros((delay + 1, k + 1, 3))
-        self._hist_blind = np.zeros((delay + 1, k))
+        self._obs_ints[: fused.S_RNG_NEXT] = (delay, 0, 0)
+        self._obs_mem = fused.observe_memory(k, self._n_readings, delay)
+        self._goals = fused.observe_goals(self._obs_mem, k)
 
     def _observe(self) -> tuple[Any, float, float | None]:
         """The observation, the true achieved-to-desired distance (what success and reward
@@ -563,18 +557,17 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             diff = achieved - desired
             return self._pixels(), math.sqrt(diff @ diff), None
         rng = self.np_random
-        state = self._obs_state
+        ints = self._obs_ints
         points = task.true_points(self)
         noise = self.sensors.draw(len(points) + 1, rng)
         if rng is not self._rng_binding.rng:  # the kernel draws the occlusion uniforms from it
-            self._rng_binding.bind(state, rng)
+            self._rng_binding.bind(ints, rng)
         contacts = self.data.contact.geom if self._shaping_compiled else self._no_contacts
         vec = np.empty(self.builder.size, dtype=np.float32)
         d, shaped = fused.observe(
-            self._qpos, self._obs_qadr, self._tool_xpos, points, self._prm, noise, self._last_seen,
-            self._blind_steps, state, self._hist_joints, self._hist_points, self._hist_blind,
-            self._targets, self._prev_action, task.obs_aux, self._layout, achieved, desired, vec,
-            self._goals, contacts, task.shaping_ids, task.shaping_prm,
+            self._qpos, self._tool_xpos, points, self._prm, ints, noise, self._obs_mem,
+            self._targets, self._prev_action, task.obs_aux, achieved, desired, vec, contacts,
+            task.shaping_ids, task.shaping_prm,
         )  # fmt: skip
         if self.obs_mode == "goal":
             goals = self._goals.astype(np.float32)

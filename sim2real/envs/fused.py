@@ -301,28 +301,41 @@ def _put(obs: np.ndarray, start: int, x0: float, x1: float, x2: float) -> None:
     obs[start + 2] = np.float32(x2)
 
 
+def observe_ints(qadr: np.ndarray, layout: np.ndarray) -> np.ndarray:
+    """``observe``'s ``ints``: the ``S_*`` state slots (zero: ``state[S_DELAY]`` is set per
+    episode), the readings' qpos addresses (joints, then the first finger's with a gripper
+    reading) and the layout's rows (``FIELDS`` code, start, size), flat."""
+    return np.concatenate([np.zeros(N_STATE), qadr, np.ravel(layout)]).astype(np.int64)
+
+
+def observe_memory(k: int, n_readings: int, delay: int) -> np.ndarray:
+    """``observe``'s ``mem`` for k task points and a delay line of ``delay`` steps: the last
+    seen estimates (k, 3), the blind counts (k,), the goals (2, 3), then the delay line's rows
+    of readings (delay + 1, each: joints, points (k + 1, 3), blind times (k,)). Zeros: as
+    after a reset."""
+    return np.zeros(4 * k + 6 + (delay + 1) * (n_readings + 3 * (k + 1) + k))
+
+
+def observe_goals(mem: np.ndarray, k: int) -> np.ndarray:
+    """The (2, 3) view of ``mem``'s goals (achieved, desired), which ``observe`` writes."""
+    return mem[4 * k : 4 * k + 6].reshape(2, 3)
+
+
 @_jit
 def observe(
     qpos: np.ndarray,
-    qadr: np.ndarray,
     tool_m: np.ndarray,
     true_points_m: np.ndarray,
     prm: np.ndarray,
+    ints: np.ndarray,
     noise: np.ndarray,
-    last_seen_m: np.ndarray,
-    blind_steps: np.ndarray,
-    state: np.ndarray,
-    hist_joints: np.ndarray,
-    hist_points: np.ndarray,
-    hist_blind: np.ndarray,
+    mem: np.ndarray,
     targets_rad: np.ndarray,
     prev_action: np.ndarray,
     aux: np.ndarray,
-    layout: np.ndarray,
     true_achieved_m: np.ndarray,
     true_desired_m: np.ndarray,
     obs: np.ndarray,
-    goals_out: np.ndarray,
     contact_geoms: np.ndarray,
     shaping_ids: np.ndarray,
     shaping_prm: np.ndarray,
@@ -330,19 +343,34 @@ def observe(
     """Sense, observe, and judge one step; returns the true achieved-to-desired distance and
     the task's compiled shaping (``prm[P_SHAPING]``, ``SHAPING_RULES``; 0.0 without one).
 
-    ``qadr``: the joints' qpos addresses, then (with a gripper reading) the first finger's.
-    ``noise``: this step's standard normals (joints, then 3 per point: the tool, the task's);
-    The occlusion draws, ``rng.random((2, k))``'s, come from the generator ``bind_rng`` put
-    into ``state`` (none on the first call after a reset, as ``SensorModel.occlude``).
-    ``layout`` rows: (``FIELDS`` code, start, size). ``goals_out`` (2, 3): achieved, desired.
+    ``prm``: ``N_PRM`` slots, then one joint bias per reading. ``ints``: ``observe_ints``
+    (its ``S_*`` state advanced in place); ``mem``: ``observe_memory`` (in place).
+    ``noise``: this step's standard normals (joints, then 3 per point: the tool, the task's).
+    The occlusion draws, ``rng.random((2, k))``'s, come from the generator ``RngBinding`` put
+    into ``ints`` (none on the first call after a reset, as ``SensorModel.occlude``).
     ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs, read by the shaping rule only.
+    Few arguments on purpose: unboxing each costs about 0.05 µs a call.
     """
-    n_r = qadr.shape[0]
+    n_r = prm.shape[0] - N_PRM
     n_j = n_r - 1 if prm[P_GRIP_READ] > 0.0 else n_r
     k = true_points_m.shape[0]
-    joints = np.empty(n_r)
-    points = np.empty((k + 1, 3))
-    blind = np.zeros(k)
+    state = ints[:N_STATE]
+    qadr = ints[N_STATE : N_STATE + n_r]
+    layout = ints[N_STATE + n_r :]
+    last_seen_m = mem[: 3 * k].reshape((k, 3))
+    blind_steps = mem[3 * k : 4 * k]
+    goals_out = mem[4 * k : 4 * k + 6].reshape((2, 3))
+    # the delay line's rows: this call's readings go straight into row ``slot``
+    delay = state[S_DELAY]
+    count = state[S_COUNT]
+    state[S_COUNT] = count + 1
+    rows = delay + 1
+    row_size = n_r + 3 * (k + 1) + k
+    line = mem[4 * k + 6 : 4 * k + 6 + rows * row_size].reshape((rows, row_size))
+    slot = count % rows
+    joints = line[slot, :n_r]
+    points = line[slot, n_r : n_r + 3 * (k + 1)].reshape((k + 1, 3))
+    blind = line[slot, n_r + 3 * (k + 1) :]
     # --- SensorModel.read: bias, noise, quantisation; stereo-shaped position noise
     jn, res, inv_res = prm[P_JOINT_NOISE], prm[P_RESOLUTION], prm[P_INV_RESOLUTION]
     for i in range(n_j):
@@ -410,19 +438,12 @@ def observe(
             for c in range(3):
                 points[p + 1, c] = last_seen_m[p, c]
             blind[p] = blind_steps[p] * prm[P_DT]
-    # --- SensorModel.delay: the readings of ``delay`` calls ago
-    delay = state[S_DELAY]
-    count = state[S_COUNT]
-    state[S_COUNT] = count + 1
+    # --- SensorModel.delay: the readings of ``delay`` calls ago (the first call's until then)
     if delay > 0:
-        slot = count % (delay + 1)
-        hist_joints[slot] = joints
-        hist_points[slot] = points
-        hist_blind[slot] = blind
-        out = (count - delay) % (delay + 1) if count >= delay else 0
-        joints = hist_joints[out].copy()
-        points = hist_points[out].copy()
-        blind = hist_blind[out].copy()
+        out = (count - delay) % rows if count >= delay else 0
+        joints = line[out, :n_r]
+        points = line[out, n_r : n_r + 3 * (k + 1)].reshape((k + 1, 3))
+        blind = line[out, n_r + 3 * (k + 1) :]
     # --- the task's goal rule (``pick.cube_estimate``: an unseen object in holding fingers
     # moves with the tool)
     obj = points[1]
@@ -447,8 +468,8 @@ def observe(
     fk0, fk1, fk2 = rr * math.cos(yaw), rr * math.sin(yaw), zz
     # --- ObservationBuilder.build
     ee = points[0]
-    for f in range(layout.shape[0]):
-        code, start, size = layout[f, 0], layout[f, 1], layout[f, 2]
+    for f in range(layout.shape[0] // 3):
+        code, start, size = layout[3 * f], layout[3 * f + 1], layout[3 * f + 2]
         if code == 0:
             for i in range(size):
                 obs[start + i] = np.float32(joints[i])

@@ -204,14 +204,12 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
         prm[fused.P_GOAL_RULE] = fused.GOAL_RULES[task.goal_rule]
         prm[fused.P_OCCLUDABLE] = task.occludable
         delay = fast.delay_steps
-        state = np.zeros(fused.N_STATE, dtype=np.int64)
-        state[fused.S_DELAY] = delay
-        fused.RngBinding().bind(state, r_fast)  # the occlusion draws, as ``occlude`` makes them
-        hist = (np.zeros((delay + 1, n_r)), np.zeros((delay + 1, 2, 3)), np.zeros((delay + 1, 1)))
-        last_seen, blind_steps = np.zeros((1, 3)), np.zeros(1)
-        qadr = np.arange(n_r, dtype=np.int64)
+        ints = fused.observe_ints(np.arange(n_r), layout)
+        ints[fused.S_DELAY] = delay
+        fused.RngBinding().bind(ints, r_fast)  # the occlusion draws, as ``occlude`` makes them
+        mem = fused.observe_memory(1, n_r, delay)
+        goals = fused.observe_goals(mem, 1)
         aux = rng.uniform(-0.2, 0.2, (2, 3))
-        goals = np.zeros((2, 3))
         for _ in range(40):
             qpos = rng.uniform(-1.5, 1.5, n_r + 2)
             if task.uses_gripper:
@@ -257,9 +255,8 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             noise = fast.draw(2, r_fast)
             obs = np.empty(builder.size, dtype=np.float32)
             d, shaped = fused.observe(
-                qpos, qadr, tool, point[None], prm, noise, last_seen, blind_steps,
-                state, *hist, targets, prev_action, aux, layout, true_a, true_d, obs, goals,
-                no_contacts, no_ids, no_prm,
+                qpos, tool, point[None], prm, ints, noise, mem, targets, prev_action, aux, true_a,
+                true_d, obs, no_contacts, no_ids, no_prm,
             )  # fmt: skip
             np.testing.assert_array_equal(obs, want)
             np.testing.assert_array_equal(goals, np.stack([achieved, desired]))
