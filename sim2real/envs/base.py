@@ -329,7 +329,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         if start == START_HELD:
             self._start_held(rng, height_m)
         mujoco.mj_forward(self.model, self.data)
-        obs, d, _ = self._observe()
+        obs, d, _ = self._observe(rng)
         success = self.task.success_from_distance(self, d)  # is_success's bits, d is its norm
         info = {"dr": self.dr_params, "is_success": success, "start": start}
         if self.privileged_space is not None:
@@ -342,9 +342,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             action = action.astype(np.float64)
         a = np.empty_like(action)
         targets = np.empty_like(self._targets)
-        act, servo = self.actuation, self.actuation.servo
+        act, servo, rng = self.actuation, self.actuation.servo, self.np_random
         # the command noise is drawn before the safety filter runs: it draws nothing
-        noise = act.noise.take(self.np_random) if act.noise_rad > 0 else self._no_noise
+        noise = act.noise.take(rng) if act.noise_rad > 0 else self._no_noise
         cmd, max_delta = self._cmd, self._max_delta[action.dtype]
         if self._safety is None:  # decode → servo in one call
             fused.command(
@@ -370,7 +370,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             self.task.after_step(self)
         self._prev_action = a
         self._steps += 1
-        obs, d, shaped = self._observe()
+        obs, d, shaped = self._observe(rng)
         success = self.task.success_from_distance(self, d)
         reward = float(self._reward_fn(d, d < self.task.success_threshold_m))
         if self.obs_mode != "goal":  # HER recomputes rewards from goals alone
@@ -528,6 +528,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._prm = prm
         self._obs_ints = fused.observe_ints(obs_qadr, self._layout)
         self._rng_binding = fused.RngBinding()  # the generator ``observe`` draws from
+        self._sensor_noise = self.sensors.noise_buffer(self.task.n_points + 1)
 
     def _configure_fused(self) -> None:
         """The episode's servo and sensor parameters into the compiled step's arrays."""
@@ -545,7 +546,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._obs_mem = fused.observe_memory(k, self._n_readings, delay)
         self._goals = fused.observe_goals(self._obs_mem, k)
 
-    def _observe(self) -> tuple[Any, float, float | None]:
+    def _observe(self, rng: np.random.Generator) -> tuple[Any, float, float | None]:
         """The observation, the true achieved-to-desired distance (what success and reward
         are judged on) and the task's compiled shaping (None: not compiled here, see
         ``Task.shaping_rule``). One compiled call senses (``SensorModel``: read, occlude,
@@ -556,10 +557,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         if self.obs_mode == "pixels":
             diff = achieved - desired
             return self._pixels(), math.sqrt(diff @ diff), None
-        rng = self.np_random
         ints = self._obs_ints
         points = task.true_points(self)
-        noise = self.sensors.draw(len(points) + 1, rng)
+        noise = self._sensor_noise.take(rng)  # ``SensorModel.draw``'s normals
         if rng is not self._rng_binding.rng:  # the kernel draws the occlusion uniforms from it
             self._rng_binding.bind(ints, rng)
         contacts = self.data.contact.geom if self._shaping_compiled else self._no_contacts

@@ -141,10 +141,15 @@ class SensorModel:
     def draw(self, k: int, rng: np.random.Generator) -> np.ndarray:
         """This step's standard normals for the joints and k points (n + 3k,): one RNG call per
         block of steps. ``read`` uses them, and so does the envs' compiled step."""
+        return self.noise_buffer(k).take(rng)
+
+    def noise_buffer(self, k: int) -> NoiseBuffer:
+        """The buffer ``draw`` takes from for k points (``reset`` clears it; it stays the same
+        object while k does): a caller on the hot path keeps it and calls ``take``."""
         dim = self._n + 3 * k
         if self._noise is None or self._noise.dim != dim:
             self._noise = NoiseBuffer(dim)
-        return self._noise.take(rng)
+        return self._noise
 
     def read(
         self, q_rad: np.ndarray, points_m: np.ndarray, rng: np.random.Generator
