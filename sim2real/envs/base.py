@@ -289,6 +289,10 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._sent = self._targets.copy()
         self._prev_action = np.zeros(self._n_act)
         self._steps = 0
+        # Gymnasium's OrderEnforcing, in the env: the registered ids are made without that
+        # wrapper (one Python layer less on every step), and step/render before the first reset
+        # still raise ``ResetNeeded``
+        self._needs_reset = True
         self.dr_params: dict[str, Any] = {}
         # Pixel variants report the true state in info["privileged_state"], for training-only
         # critics and teachers (sim2real.train); the observation never holds it.
@@ -334,9 +338,12 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         info = {"dr": self.dr_params, "is_success": success, "start": start}
         if self.privileged_space is not None:
             info["privileged_state"] = self.privileged_state()
+        self._needs_reset = False
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("Cannot call env.step() before calling env.reset()")
         action = np.asarray(action)
         if action.dtype != np.float32:  # a float32 action scales in float32, as numpy does
             action = action.astype(np.float64)
@@ -382,6 +389,8 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         return obs, reward, False, truncated, info
 
     def render(self) -> np.ndarray | None:
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("Cannot call env.render() before calling env.reset()")
         if self.render_mode != "rgb_array":
             return None
         if self._frame_renderer is None:

@@ -52,3 +52,18 @@ def test_discrete_action_flag_matches_the_built_env(name: str) -> None:
     env = envs.make(name)
     assert envs.has_discrete_actions(name) == isinstance(env.action_space, gym.spaces.Discrete)
     env.close()
+
+
+@pytest.mark.parametrize("env_id", ["Sim2Real/Arm3Pick-v0", "Sim2Real/Arm3ReachGoal-v0"])
+def test_arm_envs_enforce_reset_before_step_without_the_wrapper(env_id: str) -> None:
+    """The arm ids are made without Gymnasium's OrderEnforcing (one layer less per step): the
+    env itself refuses step and render before the first reset, as the wrapper did."""
+    env = gym.make(env_id, render_mode="rgb_array")
+    assert env is env.unwrapped  # no wrapper between the user and the env
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(env.action_space.sample())
+    with pytest.raises(gym.error.ResetNeeded):
+        env.render()
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    env.close()
