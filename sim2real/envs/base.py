@@ -381,7 +381,8 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         success = self.task.success_from_distance(self, d)
         reward = float(self._reward_fn(d, d < self.task.success_threshold_m))
         if self.obs_mode != "goal":  # HER recomputes rewards from goals alone
-            reward += self.task.shaping(self) if shaped is None else shaped
+            # NaN: the compiled shaping needs MuJoCo's contact list, which ``shaping`` reads
+            reward += self.task.shaping(self) if shaped is None or shaped != shaped else shaped
         truncated = self._steps >= self.max_episode_steps
         info: dict[str, Any] = {"is_success": success, "distance_m": d}
         if self.privileged_space is not None:
@@ -530,9 +531,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             raise UnknownNameError("shaping_rule", self.task.shaping_rule, fused.SHAPING_RULES)
         prm[fused.P_SHAPING] = fused.SHAPING_RULES[self.task.shaping_rule] if compiled else 0
         self._shaping_compiled = compiled
-        # a stand-in for MuJoCo's contact pairs when no rule reads them, of the same numba type
-        # (a strided int32 view), so ``observe`` keeps one specialisation
-        self._no_contacts = np.zeros((1, 4), dtype=np.int32)[:, ::2]
+        self._geom_xpos = self.data.geom_xpos  # a view of MuJoCo's buffer, as ``_qpos``
         fused.put_camera(prm, self.sensors)
         self._prm = prm
         self._obs_ints = fused.observe_ints(obs_qadr, self._layout)
@@ -571,11 +570,10 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         noise = self._sensor_noise.take(rng)  # ``SensorModel.draw``'s normals
         if rng is not self._rng_binding.rng:  # the kernel draws the occlusion uniforms from it
             self._rng_binding.bind(ints, rng)
-        contacts = self.data.contact.geom if self._shaping_compiled else self._no_contacts
         vec = np.empty(self.builder.size, dtype=np.float32)
         d, shaped = fused.observe(
             self._qpos, self._tool_xpos, points, self._prm, ints, noise, self._obs_mem,
-            self._targets, self._prev_action, task.obs_aux, achieved, desired, vec, contacts,
+            self._targets, self._prev_action, task.obs_aux, achieved, desired, vec, self._geom_xpos,
             task.shaping_ids, task.shaping_prm,
         )  # fmt: skip
         if self.obs_mode == "goal":

@@ -254,7 +254,7 @@ GOAL_RULES = {
 # A task's compiled shaping (``Task.shaping_rule``), from ``Task.shaping_ids``/``shaping_prm``.
 SHAPING_RULES = {
     "none": 0,  # ``Task.shaping`` runs in Python (0 unless the task overrides it)
-    "grasp_lift": 1,  # ``grasp_shaping``: ids [object geom, fingers...], prm ``GRASP_PRM``
+    "grasp_lift": 1,  # ``grasp_shaping``: ids [object geom, fingers...], prm the ``G_*`` slots
 }
 # Observation fields the kernel fills, by name (``ObsField.name``).
 FIELDS = {
@@ -336,19 +336,20 @@ def observe(
     true_achieved_m: np.ndarray,
     true_desired_m: np.ndarray,
     obs: np.ndarray,
-    contact_geoms: np.ndarray,
+    geom_xpos: np.ndarray,
     shaping_ids: np.ndarray,
     shaping_prm: np.ndarray,
 ) -> tuple[float, float]:
     """Sense, observe, and judge one step; returns the true achieved-to-desired distance and
-    the task's compiled shaping (``prm[P_SHAPING]``, ``SHAPING_RULES``; 0.0 without one).
+    the task's compiled shaping (``prm[P_SHAPING]``, ``SHAPING_RULES``; 0.0 without one; NaN
+    when it needs MuJoCo's contact list: ``grasp_reach``).
 
     ``prm``: ``N_PRM`` slots, then one joint bias per reading. ``ints``: ``observe_ints``
     (its ``S_*`` state advanced in place); ``mem``: ``observe_memory`` (in place).
     ``noise``: this step's standard normals (joints, then 3 per point: the tool, the task's).
     The occlusion draws, ``rng.random((2, k))``'s, come from the generator ``RngBinding`` put
     into ``ints`` (none on the first call after a reset, as ``SensorModel.occlude``).
-    ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs, read by the shaping rule only.
+    ``geom_xpos``: MuJoCo's geom positions, read by the shaping rule only.
     Few arguments on purpose: unboxing each costs about 0.05 µs a call.
     """
     n_r = prm.shape[0] - N_PRM
@@ -511,12 +512,41 @@ def observe(
     x2 = true_achieved_m[2] - true_desired_m[2]
     shaped = 0.0
     if prm[P_SHAPING] == 1.0:  # the task's first point is the object it grasps
-        shaped = grasp_shaping(tool_m, true_points_m[0], contact_geoms, shaping_ids, shaping_prm)
+        shaped = grasp_reach(tool_m, true_points_m[0], geom_xpos, shaping_ids, shaping_prm)
     return math.sqrt(_dot3(x0, x1, x2, x0, x1, x2)), shaped
 
 
-# Slots of ``grasp_shaping``'s ``prm``.
+# Slots of ``grasp_shaping``'s ``prm``; then, for ``grasp_reach``, one contact reach per id
+# (``geom_rbound + geom_margin``, m).
 G_REST_Z, G_REACH_PER_M, G_BONUS, G_LIFT_PER_M, G_LIFT_CAP_M, N_GRASP_PRM = 0, 1, 2, 3, 4, 5
+
+
+@_jit
+def grasp_reach(
+    tool_m: np.ndarray,
+    object_m: np.ndarray,
+    geom_xpos: np.ndarray,
+    ids: np.ndarray,
+    prm: np.ndarray,
+) -> float:
+    """``grasp_shaping`` without the contact list where it cannot matter: when some finger is
+    too far from the object to touch it (its and the object's bounding spheres, grown by their
+    margins, apart: MuJoCo makes no contact then), there is no grasp and the shaping is the
+    approach term, the same value ``grasp_shaping`` returns; otherwise NaN: the caller reads the
+    contacts and calls ``grasp_shaping``. Reading the contact list costs more than this."""
+    v0, v1, v2 = tool_m[0] - object_m[0], tool_m[1] - object_m[1], tool_m[2] - object_m[2]
+    reach = -prm[G_REACH_PER_M] * math.sqrt(_dot3(v0, v1, v2, v0, v1, v2))
+    g = ids[0]
+    for f in range(1, ids.shape[0]):
+        h = ids[f]
+        d0 = geom_xpos[h, 0] - geom_xpos[g, 0]
+        d1 = geom_xpos[h, 1] - geom_xpos[g, 1]
+        d2 = geom_xpos[h, 2] - geom_xpos[g, 2]
+        apart = prm[N_GRASP_PRM] + prm[N_GRASP_PRM + f]
+        # a relative and an absolute slack far above the rounding of either distance
+        if math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) > apart * (1.0 + 1e-9) + 1e-9:
+            return reach
+    return math.nan
 
 
 @_jit

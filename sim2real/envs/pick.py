@@ -210,7 +210,8 @@ class PickTask(Task):
         self._placed = np.zeros(3)  # x, y (m), yaw (rad): where ``reset`` put the cube
         # ``fused.grasp_shaping``'s inputs: [cube geom, finger geoms] (at the first reset) and
         # the ``fused.G_*`` slots (the resting height at every reset)
-        self.shaping_prm = np.zeros(fused.N_GRASP_PRM)
+        # (``fused.grasp_reach``: then a contact reach for the cube and each finger)
+        self.shaping_prm = np.zeros(fused.N_GRASP_PRM + 1 + len(names.FINGER_GEOMS))
         self.shaping_prm[fused.G_REACH_PER_M] = REACH_WEIGHT_PER_M
         self.shaping_prm[fused.G_BONUS] = GRASP_BONUS
         self.shaping_prm[fused.G_LIFT_PER_M] = LIFT_WEIGHT_PER_M
@@ -237,6 +238,11 @@ class PickTask(Task):
         q[a + 3 : a + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         self.rest_z_m = half
         self.shaping_prm[fused.G_REST_Z] = half
+        # how far the cube and each finger reach for a contact, after this episode's DR; with
+        # explicit contact pairs (their own margins) the contact list is always read
+        ids = self.shaping_ids
+        reach = m.geom_rbound[ids] + m.geom_margin[ids] if m.npair == 0 else np.inf
+        self.shaping_prm[fused.N_GRASP_PRM :] = reach
         self._placed = np.array([xy[0], xy[1], yaw])
         self.goal_m = lift_goal(np.array([xy[0], xy[1], half]))
         self.obs_aux[0] = self.goal_m

@@ -278,20 +278,21 @@ def test_rng_binding_is_not_copied() -> None:
 
 
 def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
-    """The compiled shaping against ``is_grasped`` and ``lift_m`` on real contacts: a held start
-    (both fingers on the cube) and random steps that let go and touch again."""
+    """The compiled shaping against ``is_grasped`` and ``lift_m`` on real contacts: held starts
+    (both fingers on the cube), default starts, and random steps that let go and touch again.
+    The step's shaping (``grasp_reach`` in the observation call, the contact list only when
+    every finger is near the cube) is the same value; it skips the list only without a grasp."""
     env = envs.make("Sim2Real/Arm3Pick-v0")
     u: Any = env.unwrapped
     rng = np.random.default_rng(5)
-    grasped = 0
+    grasped = near = far = 0
     try:
-        for episode in range(4):
-            env.reset(seed=episode, options={"start": "held"})
+        for episode in range(6):
+            env.reset(seed=episode, options={"start": "held" if episode < 4 else "default"})
             for _ in range(30):
                 a = rng.uniform(-1, 1, 4).astype(np.float32)
                 a[3] = -1.0 if rng.random() < 0.8 else a[3]
                 _, reward, _, _, info = env.step(a)
-                # the step's shaping is the kernel inside its observation call: the same value
                 d = info["distance_m"]
                 assert reward == float(
                     u._reward_fn(d, d < u.task.success_threshold_m)
@@ -302,6 +303,16 @@ def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
                     grasped += 1
                     want = want + 0.5 + 10.0 * u.task.lift_m(u)
                 assert u.task.shaping(u) == want
+                gated = fused.grasp_reach(
+                    u.ee_position(), u.task.cube_position(u), u.data.geom_xpos,
+                    u.task.shaping_ids, u.task.shaping_prm,
+                )  # fmt: skip
+                if np.isnan(gated):
+                    near += 1
+                else:
+                    far += 1
+                    assert gated == want and not u.task.is_grasped(u)
     finally:
         env.close()
     assert grasped > 10  # the grasp branch was exercised
+    assert near > grasped and far > 10  # and both sides of the contact-list gate
