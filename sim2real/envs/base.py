@@ -557,9 +557,11 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
     def _observe(self, rng: np.random.Generator) -> tuple[Any, float, float | None]:
         """The observation, the true achieved-to-desired distance (what success and reward
         are judged on) and the task's compiled shaping (None: not compiled here, see
-        ``Task.shaping_rule``). One compiled call senses (``SensorModel``: read, occlude,
-        delay), forms the task's goal, fills the layout and shapes; the random draws are made
-        here, in the order and number the numpy models make them."""
+        ``Task.shaping_rule``; NaN: it needs the contact list, ``Task.shaping`` reads it). One
+        compiled call senses (``SensorModel``: read, occlude, delay), forms the task's goal,
+        fills the layout and shapes; the normals come from the sensor model's buffer and the
+        occlusion's uniforms from ``rng`` inside the kernel (``fused.RngBinding``), in the order
+        and number the numpy models draw them."""
         task = self.task
         achieved, desired = task.true_goals(self)
         if self.obs_mode == "pixels":
