@@ -529,6 +529,13 @@ G_REST_Z, G_REACH_PER_M, G_BONUS, G_LIFT_PER_M, G_LIFT_CAP_M, N_GRASP_PRM = 0, 1
 
 
 @_jit
+def _approach(tool_m: np.ndarray, object_m: np.ndarray, per_m: float) -> float:
+    """The approach term, ``-per_m · |tool − object|`` (the norm as numpy's ``ddot`` rounds)."""
+    v0, v1, v2 = tool_m[0] - object_m[0], tool_m[1] - object_m[1], tool_m[2] - object_m[2]
+    return -per_m * math.sqrt(_dot3(v0, v1, v2, v0, v1, v2))
+
+
+@_jit
 def grasp_reach(
     tool_m: np.ndarray,
     object_m: np.ndarray,
@@ -541,8 +548,7 @@ def grasp_reach(
     margins, apart: MuJoCo makes no contact then), there is no grasp and the shaping is the
     approach term, the same value ``grasp_shaping`` returns; otherwise NaN: the caller reads the
     contacts and calls ``grasp_shaping``. Reading the contact list costs more than this."""
-    v0, v1, v2 = tool_m[0] - object_m[0], tool_m[1] - object_m[1], tool_m[2] - object_m[2]
-    reach = -prm[G_REACH_PER_M] * math.sqrt(_dot3(v0, v1, v2, v0, v1, v2))
+    reach = _approach(tool_m, object_m, prm[G_REACH_PER_M])
     g = ids[0]
     for f in range(1, ids.shape[0]):
         h = ids[f]
@@ -567,8 +573,7 @@ def grasp_shaping(
     """Pick's staged shaping (``PickTask.shaping``): approach, both fingers on the object, lift.
     ``contact_geoms`` (ncon, 2): MuJoCo's contact pairs; ``ids``: [object geom, finger geoms...];
     ``prm``: the ``G_*`` slots (the object's resting height, the weights, the lift cap)."""
-    v0, v1, v2 = tool_m[0] - object_m[0], tool_m[1] - object_m[1], tool_m[2] - object_m[2]
-    reach = -prm[G_REACH_PER_M] * math.sqrt(_dot3(v0, v1, v2, v0, v1, v2))
+    reach = _approach(tool_m, object_m, prm[G_REACH_PER_M])
     object_geom = ids[0]
     for f in range(1, ids.shape[0]):
         touching = False
