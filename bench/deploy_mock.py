@@ -179,8 +179,14 @@ def main() -> None:
             # env steps): sim/env then measures the pipeline, not this machine's load
             opts = DeployOptions(backend=backend, watchdog_s=args.watchdog_s,
                                  sim_clock=args.sim_clock)  # fmt: skip
-            res = deploy(ref, spec, opts,
-                         LoopConfig(episodes=args.episodes, placements=placements))  # fmt: skip
+            try:
+                res = deploy(ref, spec, opts,
+                             LoopConfig(episodes=args.episodes, placements=placements))  # fmt: skip
+            except Exception as exc:  # a stop is a result too: one line, then the next backend
+                emit(f"deploy_{backend}_failed", str(exc).splitlines()[0], "", policy=ref,
+                     wall_s=round(time.perf_counter() - t0, 1),
+                     load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
+                continue
             s = res.summary()
             rates[backend] = s["success_rate"]
             outcomes[backend] = [e.success for e in res.episodes]
