@@ -90,7 +90,8 @@ class RngBinding:
     its output with exactly these calls, so the kernel's draws are ``rng.random``'s and leave
     ``rng`` where they would. The binding keeps ``rng`` (so the addresses) alive; the owner
     rebinds when its generator changes (``rng is not binding.rng``). A copy or an unpickled one
-    starts unbound: addresses belong to one process and one generator object."""
+    starts unbound: addresses belong to one process and one generator object. The kernel does
+    not take the generator's lock: like the env, not for two threads at once."""
 
     def __init__(self) -> None:
         self.rng: np.random.Generator | None = None
