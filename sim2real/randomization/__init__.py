@@ -19,7 +19,7 @@ import numpy as np
 from sim2real.errors import ConfigError
 from sim2real.randomization import actuation, dynamics, kinematics, sensing, visual
 from sim2real.randomization import object as object_dr
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params
+from sim2real.randomization.base import DirectKey, ModelIds, ModelSnapshot, Params
 from sim2real.randomization.config import (
     CATEGORY_NAMES,
     DRConfig,
@@ -37,7 +37,7 @@ Applier = Callable[[mujoco.MjModel, ModelSnapshot, ModelIds, Params], None]
 # this order, cast (``float``, ``round``) or not, lists them so a reset can take them straight
 # from the replayed draws (``tests/sim2real/randomization/test_replay.py`` holds them to
 # ``sample``).
-DirectKeys = Callable[[ModelIds], Sequence[tuple[str, int | None, Callable[[Any], Any] | None]]]
+DirectKeys = Callable[[ModelIds], Sequence[DirectKey]]
 # per key: (key, recorded call or -1 when neutral, the neutral value, size, cast)
 _Direct = list[tuple[str, int, Any, int | None, Callable[[Any], Any] | None]]
 

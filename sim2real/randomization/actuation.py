@@ -5,13 +5,12 @@ servo model, ``hardware.servo_model``): DR samples parameters, it does not own t
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 
 from sim2real.actuation import ServoActuation
-from sim2real.randomization.base import ModelIds, Params
+from sim2real.randomization.base import DirectKey, ModelIds, Params, draw_keys, round_steps
 from sim2real.randomization.config import Range
 
 __all__ = [
@@ -22,23 +21,14 @@ __all__ = [
 
 
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:
-    return {
-        "latency_steps": round(float(ranges["latency_steps"].sample(rng))),
-        "action_noise_rad": float(ranges["action_noise_rad"].sample(rng)),
-        "max_speed_scale": float(ranges["max_speed_scale"].sample(rng)),
-        "deadband_rad": float(ranges["deadband_rad"].sample(rng)),
-        "quantisation_rad": float(ranges["quantisation_rad"].sample(rng)),
-    }
+    """The servo's parameters for one episode (``direct_keys``)."""
+    return draw_keys(direct_keys(ids), rng, ranges)
 
 
-def _steps(x: Any) -> int:
-    return round(float(x))
-
-
-def direct_keys(ids: ModelIds) -> list[tuple[str, int | None, Callable[[Any], Any]]]:
-    """``sample``'s keys in its order, each one scalar ``Range.sample`` cast as there."""
+def direct_keys(ids: ModelIds) -> list[DirectKey]:
+    """The servo's draws, in their order."""
     return [
-        ("latency_steps", None, _steps),
+        ("latency_steps", None, round_steps),
         ("action_noise_rad", None, float),
         ("max_speed_scale", None, float),
         ("deadband_rad", None, float),

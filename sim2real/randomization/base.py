@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import weakref
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -18,13 +18,35 @@ from sim2real.noise import NoiseBuffer
 Params = dict[str, Any]
 
 __all__ = [  # NoiseBuffer: sensing.py
+    "DirectKey",
     "ModelIds",
     "ModelSnapshot",
     "NoiseBuffer",
     "Params",
     "PlanCache",
     "as_index",
+    "draw_keys",
+    "round_steps",
 ]
+
+# A category's draw listed: (key, ``Range.sample`` size or None for a scalar, cast or None). The
+# list is the category's ``sample`` (``draw_keys``) and what the replay matches to its recording.
+DirectKey = tuple[str, int | None, Callable[[Any], Any] | None]
+
+
+def round_steps(x: Any) -> int:
+    """A drawn count of whole steps (latency, delay)."""
+    return round(float(x))
+
+
+def draw_keys(keys: Sequence[DirectKey], rng: Any, ranges: Mapping[str, Any]) -> Params:
+    """Each key's ``Range.sample`` in the listed order, cast as listed."""
+    out: Params = {}
+    for key, size, cast in keys:
+        value = ranges[key].sample(rng, size)
+        out[key] = value if cast is None else cast(value)
+    return out
+
 
 # Every MjModel field any DR category writes. restore() copies exactly these back.
 TOUCHED_FIELDS: tuple[str, ...] = (

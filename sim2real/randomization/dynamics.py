@@ -9,24 +9,25 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache, as_index
+from sim2real.randomization.base import (
+    DirectKey,
+    ModelIds,
+    ModelSnapshot,
+    Params,
+    PlanCache,
+    as_index,
+    draw_keys,
+)
 from sim2real.randomization.config import Range
 
 
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:
     """Independent draws per link / dof / actuator: no two servos or links are alike."""
-    n_b, n_d, n_a = len(ids.arm_bodies), len(ids.arm_dofs), len(ids.servo_actuators)
-    return {
-        "link_mass_scale": ranges["link_mass_scale"].sample(rng, n_b),
-        "joint_damping_scale": ranges["joint_damping_scale"].sample(rng, n_d),
-        "joint_frictionloss_nm": ranges["joint_frictionloss_nm"].sample(rng, n_d),
-        "armature_scale": ranges["armature_scale"].sample(rng, n_d),
-        "actuator_gain_scale": ranges["actuator_gain_scale"].sample(rng, n_a),
-    }
+    return draw_keys(direct_keys(ids), rng, ranges)
 
 
-def direct_keys(ids: ModelIds) -> list[tuple[str, int | None, None]]:
-    """``sample``'s keys in its order, each one ``Range.sample`` of this size (``Category``)."""
+def direct_keys(ids: ModelIds) -> list[DirectKey]:
+    """Each draw, in order, with its size: per link, per dof, per servo actuator."""
     n_b, n_d, n_a = len(ids.arm_bodies), len(ids.arm_dofs), len(ids.servo_actuators)
     return [
         ("link_mass_scale", n_b, None),

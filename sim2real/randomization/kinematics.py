@@ -30,7 +30,14 @@ import mujoco
 import numpy as np
 
 from sim2real import model as names
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache
+from sim2real.randomization.base import (
+    DirectKey,
+    ModelIds,
+    ModelSnapshot,
+    Params,
+    PlanCache,
+    draw_keys,
+)
 from sim2real.randomization.config import Range
 
 # Bodies whose parent-frame position is a link length: base height moves the upper arm's origin
@@ -99,16 +106,11 @@ def _norm(v: np.ndarray) -> float:
 
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:
     """Independent draws per link, per joint and per tool axis."""
-    n = len(ids.arm_dofs)
-    return {
-        "link_length_delta_m": ranges["link_length_delta_m"].sample(rng, 3),
-        "joint_offset_rad": ranges["joint_offset_rad"].sample(rng, n),
-        "tool_offset_delta_m": ranges["tool_offset_delta_m"].sample(rng, 2),
-    }
+    return draw_keys(direct_keys(ids), rng, ranges)
 
 
-def direct_keys(ids: ModelIds) -> list[tuple[str, int | None, None]]:
-    """``sample``'s keys in its order, each one ``Range.sample`` of this size (``Category``)."""
+def direct_keys(ids: ModelIds) -> list[DirectKey]:
+    """Each draw, in order, with its size: per link, per joint and per tool axis."""
     return [
         ("link_length_delta_m", 3, None),
         ("joint_offset_rad", len(ids.arm_dofs), None),

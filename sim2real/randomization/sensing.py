@@ -15,41 +15,34 @@ reported: what ``calibration.cube.StereoCubeTracker`` gives the deploy loop.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 
-from sim2real.randomization.base import ModelIds, NoiseBuffer, Params
+from sim2real.randomization.base import (
+    DirectKey,
+    ModelIds,
+    NoiseBuffer,
+    Params,
+    draw_keys,
+    round_steps,
+)
 from sim2real.randomization.config import Range
 
 
 def sample(rng: np.random.Generator, ranges: Mapping[str, Range], ids: ModelIds) -> Params:
-    n_j = len(ids.arm_dofs)
-    return {
-        "joint_noise_rad": float(ranges["joint_noise_rad"].sample(rng)),
-        "joint_bias_rad": ranges["joint_bias_rad"].sample(rng, n_j),
-        "stereo_pixel_noise_px": float(ranges["stereo_pixel_noise_px"].sample(rng)),
-        "position_bias_m": ranges["position_bias_m"].sample(rng, 3),
-        "obs_delay_steps": round(float(ranges["obs_delay_steps"].sample(rng))),
-        "point_dropout_prob": float(ranges["point_dropout_prob"].sample(rng)),
-        "occlusion_radius_m": float(ranges["occlusion_radius_m"].sample(rng)),
-        "occlusion_prob": float(ranges["occlusion_prob"].sample(rng)),
-    }
+    """The sensor models' parameters for one episode (``direct_keys``)."""
+    return draw_keys(direct_keys(ids), rng, ranges)
 
 
-def _steps(x: Any) -> int:
-    return round(float(x))
-
-
-def direct_keys(ids: ModelIds) -> list[tuple[str, int | None, Callable[[Any], Any] | None]]:
-    """``sample``'s keys in its order, each one ``Range.sample`` of this size, cast as there."""
+def direct_keys(ids: ModelIds) -> list[DirectKey]:
+    """The sensor models' draws, in their order."""
     return [
         ("joint_noise_rad", None, float),
         ("joint_bias_rad", len(ids.arm_dofs), None),
         ("stereo_pixel_noise_px", None, float),
         ("position_bias_m", 3, None),
-        ("obs_delay_steps", None, _steps),
+        ("obs_delay_steps", None, round_steps),
         ("point_dropout_prob", None, float),
         ("occlusion_radius_m", None, float),
         ("occlusion_prob", None, float),
