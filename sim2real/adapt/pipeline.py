@@ -34,6 +34,7 @@ import numpy as np
 
 from hardware.atomic import atomic_write_bytes, atomic_write_text
 from hardware.spec import ArmSpec, load_spec
+from sim2real.deploy.replayed import check_source
 from sim2real.errors import ConfigError, RunDirError, Sim2RealError
 
 STATUS_FORMAT = 1
@@ -98,10 +99,7 @@ class AdaptOptions:
                 )
             if self.watchdog_s is not None:
                 raise ConfigError("--watchdog-s is for --backend mock: a real arm keeps its spec's")
-            if self.placements != "loop":
-                raise ConfigError(
-                    f"--placements {self.placements}: on a real arm a person places the objects"
-                )
+        check_source(self.placements, self.backend)
         if not (math.isfinite(self.minutes) and self.minutes > 0):
             raise ConfigError(f"--minutes must be > 0, got {self.minutes!r}")
         if self.finetune_steps is not None and self.finetune_steps < 1:

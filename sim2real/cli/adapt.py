@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sim2real.deploy.replayed import PLACEMENT_SOURCES
 from sim2real.errors import ConfigError
 
 
@@ -63,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=1_000_000, help="deploy placement seed")
     parser.add_argument(
-        "--placements", default="loop", choices=("loop", "held-out"),
+        "--placements", default="loop", choices=tuple(PLACEMENT_SOURCES),
         help="mock: the deploys' objects from the loop's draws (--seed) or the policy's held-out "
         "evaluation episodes (the same as evaluate --dr none places)",
     )  # fmt: skip

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real.deploy.replayed import PLACEMENT_SOURCES
 from sim2real.errors import ConfigError
 
 
@@ -48,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-fps", type=float, default=30.0, help="mock cameras' frame rate")
     parser.add_argument("--seed", type=int, default=1_000_000, help="placement seed (held out)")
     parser.add_argument(
-        "--placements", default="loop", choices=("loop", "held-out"),
+        "--placements", default="loop", choices=tuple(PLACEMENT_SOURCES),
         help="sim/mock: where the objects go: the loop's own draws (--seed), or the policy's "
         "held-out evaluation episodes (evaluate --dr none places the same objects)",
     )  # fmt: skip
@@ -86,7 +87,7 @@ def _load_base_T_cam(path: Path) -> np.ndarray:
 def run(args: argparse.Namespace) -> int:
     from hardware.spec import load_spec
     from sim2real.deploy.loop import LoopConfig
-    from sim2real.deploy.replayed import placements
+    from sim2real.deploy.replayed import check_source, placements
     from sim2real.deploy.runner import DeployOptions, deploy
 
     logging.basicConfig(
@@ -117,8 +118,7 @@ def run(args: argparse.Namespace) -> int:
         watchdog_s=args.watchdog_s,
         sim_clock=args.sim_clock,
     )
-    if args.placements != "loop" and args.backend == "serial":
-        raise ConfigError(f"--placements {args.placements}: on a real arm a person places them")
+    check_source(args.placements, args.backend)
     config = LoopConfig(
         placements=placements(args.placements, args.policy, args.episodes),
         rate_hz=args.rate,

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from sim2real.errors import UnknownNameError
+from sim2real.errors import ConfigError, UnknownNameError
 
 Placements = tuple[Mapping[str, Any], ...]
 
@@ -33,6 +33,13 @@ PLACEMENT_SOURCES: dict[str, Callable[[str, int], Placements]] = {
 
 def placements(source: str, policy: str, episodes: int) -> Placements:
     """The placements ``LoopConfig.placements`` replays for ``source`` (empty: the loop draws)."""
+    check_source(source, "")
+    return PLACEMENT_SOURCES[source](policy, episodes)
+
+
+def check_source(source: str, backend: str) -> None:
+    """Replayed placements need a world that places objects: on a real arm a person does."""
     if source not in PLACEMENT_SOURCES:
         raise UnknownNameError("placement source", source, PLACEMENT_SOURCES)
-    return PLACEMENT_SOURCES[source](policy, episodes)
+    if source != "loop" and backend == "serial":
+        raise ConfigError(f"--placements {source}: on a real arm a person places the objects")
