@@ -204,7 +204,6 @@ class PickTask(Task):
         self.rest_z_m = 0.0  # cube centre height resting on the table
         self._cube_qadr = -1
         self._finger_geoms: frozenset[int] = frozenset()
-        self._finger_ids = np.zeros(0, dtype=np.int32)
         self._cube_xpos = np.zeros(3)  # set with the ids at the first reset
         self._cube_points = np.zeros((1, 3))
         self._placed = np.zeros(3)  # x, y (m), yaw (rad): where ``reset`` put the cube
@@ -224,8 +223,8 @@ class PickTask(Task):
             self._cube_body = m.body(names.CUBE_BODY).id
             self._cube_geom = m.geom(names.CUBE_GEOM).id
             self._finger_geoms = frozenset(m.geom(g).id for g in names.FINGER_GEOMS)
-            self._finger_ids = np.array(sorted(self._finger_geoms), dtype=np.int32)
-            self.shaping_ids = np.array([self._cube_geom, *self._finger_ids], dtype=np.int32)
+            fingers = sorted(self._finger_geoms)
+            self.shaping_ids = np.array([self._cube_geom, *fingers], dtype=np.int32)
             # views of MuJoCo's buffer (valid while the env's data lives): read every step
             self._cube_xpos = env.data.xpos[self._cube_body]
             self._cube_points = env.data.xpos[self._cube_body : self._cube_body + 1]
