@@ -360,16 +360,14 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             )  # fmt: skip
             self._sent = targets
         else:
-            o = 2 * self._n_joints
             fused.decode(
                 action, a, self._targets, targets, self._lo_rad, self._hi_rad, max_delta,
-                cmd[o + fused.C_DECODE_GRIP : o + fused.C_SERVO],
+                self._decode_grip,
             )  # fmt: skip
             self._sent = self._safety.filter(targets, self._sent)
             fused.actuate(
-                self._sent, noise, act.noise_rad, cmd[o + fused.C_SERVO : o + fused.C_CTRL_GRIP],
-                servo.applied_rad, servo.queue_rad, servo.head, self._ctrl,
-                cmd[o + fused.C_CTRL_GRIP : o + fused.N_CMD],
+                self._sent, noise, act.noise_rad, self._servo_prm, servo.applied_rad,
+                servo.queue_rad, servo.head, self._ctrl, self._ctrl_grip,
             )  # fmt: skip
         self._targets = targets
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
@@ -498,15 +496,14 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         closed, opened, gap = (g.closed_rad, g.open_rad, g.max_gap_m) if g else (0.0, 1.0, 1.0)
         # ``fused.command``'s constants; ``_configure_fused`` writes the episode's servo
         o = 2 * n_j
-        self._n_joints = n_j
         self._cmd = np.zeros(o + fused.N_CMD)
         self._cmd[:o] = np.concatenate([self._lo_rad, self._hi_rad])
-        self._cmd[o + fused.C_DECODE_GRIP : o + fused.C_SERVO] = (
-            float(self.decoder.use_gripper and g is not None), closed, opened,
-        )  # fmt: skip
-        self._cmd[o + fused.C_CTRL_GRIP : o + fused.N_CMD] = (
-            float(self.twin.has_gripper), closed, opened, gap,
-        )  # fmt: skip
+        # views of its slots, for the safety filter's path (decode, filter, actuate)
+        self._decode_grip = self._cmd[o + fused.C_DECODE_GRIP : o + fused.C_SERVO]
+        self._servo_prm = self._cmd[o + fused.C_SERVO : o + fused.C_CTRL_GRIP]
+        self._ctrl_grip = self._cmd[o + fused.C_CTRL_GRIP : o + fused.N_CMD]
+        self._decode_grip[:] = (float(self.decoder.use_gripper and g is not None), closed, opened)
+        self._ctrl_grip[:] = (float(self.twin.has_gripper), closed, opened, gap)
         self._no_noise = np.zeros(n_j)
         self._after_step = type(self.task).after_step is not Task.after_step
         grip_reading = self.task.uses_gripper
@@ -541,8 +538,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
     def _configure_fused(self) -> None:
         """The episode's servo and sensor parameters into the compiled step's arrays."""
         servo, sensors = self.actuation.servo, self.sensors
-        o = 2 * self._n_joints
-        self._cmd[o + fused.C_SERVO : o + fused.C_CTRL_GRIP] = (
+        self._servo_prm[:] = (
             servo.max_step_rad,
             servo.deadband_rad,
             servo.quantum_rad,
