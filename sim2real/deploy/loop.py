@@ -278,7 +278,7 @@ class DeployLoop:
         overruns = blind = 0
         stopped: str | None = None
         spec = self.decoder.spec
-        if cfg.placements:  # before the arm moves: a bad file is a config error, not a stop
+        if cfg.placements:  # before the arm moves: a bad placement is a config error, not a stop
             self._check_placements(self.io.new_contract(spec, cfg.rate_hz), cfg.placements)
         try:
             for episode in range(cfg.episodes):
