@@ -47,13 +47,13 @@ def lag_step(
     active: np.ndarray | None = None,
 ) -> np.ndarray:
     """The move (n,) of one exact first-order step of length ``dt_s`` towards ``goal_rad``,
-    capped at ``max_speed_rad_s * dt_s``; zero where the error is inside the dead band or where
+    capped at ``max_speed_rad_s * dt_s`` (a time constant of 0: no lag, the rate limit alone); zero where the error is inside the dead band or where
     ``active`` is False (torque off)."""
     err = goal_rad - pos_rad
     moving = np.abs(err) > deadband_rad
     if active is not None:
         moving &= active
-    move = err * (1.0 - np.exp(-dt_s / time_constant_s))
+    move = err * (1.0 - np.exp(-dt_s / time_constant_s)) if time_constant_s > 0 else err
     vmax_dt = np.multiply(max_speed_rad_s, dt_s)
     return np.clip(move, -vmax_dt, vmax_dt) * moving
 
@@ -151,6 +151,33 @@ class ServoBank:
         self.effort = np.zeros_like(self.pos)  # proxy for load, [-1, 1]
         self._rng = np.random.default_rng(seed)
         self.delay = CommandDelay()
+        # Set by ``attach_body``: where an outside body (the mock world's physics) holds the horns.
+        self.body_rad: np.ndarray | None = None
+        self.body_vel_rad_s = np.zeros_like(self.pos)
+
+    def attach_body(self) -> None:
+        """From now on an outside body moves the horns: the mock world's MuJoCo arm, whose
+        torque-limited position actuators are the servo's lag, its stall under load and its sag
+        under gravity. ``pos`` becomes the servo's drive setpoint (latency, dead band and the rate
+        limit, no lag of its own), ``sense`` reports where the horns really are, and the readings
+        come from there."""
+        self.body_rad = self.pos.copy()
+
+    def sense(self, body_rad: np.ndarray, body_vel_rad_s: np.ndarray) -> None:
+        """Where the attached body holds the horns now. (An unpowered servo's setpoint stays
+        where it was: the body holds the horn there, as a hobby servo's gear train does.)"""
+        assert self.body_rad is not None, "sense() needs attach_body() first"
+        self.body_rad[:] = body_rad
+        self.body_vel_rad_s[:] = body_vel_rad_s
+
+    @property
+    def horn_rad(self) -> np.ndarray:
+        """The physical horn angles: the body's where one is attached, else the model's."""
+        return self.pos if self.body_rad is None else self.body_rad
+
+    @property
+    def horn_vel_rad_s(self) -> np.ndarray:
+        return self.vel if self.body_rad is None else self.body_vel_rad_s
 
     def advance(
         self, t_from_s: float, t_to_s: float, target_rad: np.ndarray, powered: np.ndarray
@@ -187,12 +214,12 @@ class ServoBank:
             return
         goal = np.asarray(target_rad, dtype=float) + self.p.droop_rad
         on = np.asarray(powered, dtype=bool)
-        err = goal - self.pos
+        err = goal - self.horn_rad
         move = lag_step(
             self.pos,
             goal,
             dt_s,
-            self.p.time_constant_s,
+            self.p.time_constant_s if self.body_rad is None else 0.0,
             self.p.max_speed_rad_s,
             self.p.deadband_rad,
             on,
@@ -203,7 +230,7 @@ class ServoBank:
 
     def reading_rad(self) -> np.ndarray:
         """What the servo's sensor reports: quantised, with noise."""
-        r = self.pos
+        r = self.horn_rad
         if self.p.noise_rad > 0:
             r = r + self._rng.normal(0.0, self.p.noise_rad, size=r.shape)
         return quantise(r, self.p.resolution_rad)

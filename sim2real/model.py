@@ -431,6 +431,11 @@ class ArmTwin:
             if self.has_gripper
             else np.zeros(0, dtype=int)
         )
+        self.finger_dofadr = (
+            np.array([model.joint(n).dofadr[0] for n in FINGER_JOINTS])
+            if self.has_gripper
+            else np.zeros(0, dtype=int)
+        )
         self.tool_site = model.site(TOOL_SITE).id
         self.n_joints = spec.n_joints
         j = spec.joints
@@ -463,6 +468,16 @@ class ArmTwin:
         """(n_actuators,) joints then gripper, as a servo bus would list them."""
         q = data.qpos[self.qadr]
         return np.append(q, self.gripper_rad(data)) if self.has_gripper else q.copy()
+
+    def actuator_velocities(self, data: mujoco.MjData) -> np.ndarray:
+        """(n_actuators,) rad/s, as ``actuator_positions`` lists them (the gripper's from its
+        finger slide, through the linear angle ↔ gap map)."""
+        qd = data.qvel[self.dofadr]
+        g = self.spec.gripper
+        if g is None:
+            return qd.copy()
+        rad_per_m = 2 * (g.open_rad - g.closed_rad) / g.max_gap_m
+        return np.append(qd, rad_per_m * float(data.qvel[self.finger_dofadr[0]]))
 
     def tool_position(self, data: mujoco.MjData) -> np.ndarray:
         return data.site_xpos[self.tool_site]

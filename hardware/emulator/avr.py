@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hardware.emulator.coupling import BodyCoupling
 from hardware.emulator.dynamics import ServoBank, ServoParams
 from hardware.emulator.firmware import AppliedCommand
 from hardware.emulator.lifecycle import PtyDevice
@@ -44,7 +45,7 @@ from hardware.spec import ArmSpec, load_spec
 SETTLE_S = 0.05  # a pulse train stops being seen as "on" 25 ms after its last pulse, at worst 45
 
 
-class AvrEmulator(PtyDevice):
+class AvrEmulator(BodyCoupling, PtyDevice):
     """The AVR firmware in simavr on a pty. Use as a context manager, or ``start()``/``stop()``.
 
     Only protocol ``s2r`` (it is our firmware), and of ``EmulatorConfig`` only what belongs to the
@@ -282,10 +283,6 @@ class AvrEmulator(PtyDevice):
     def clear_log(self) -> None:
         with self._lock:
             self._log.clear()
-
-    def true_positions_rad(self) -> np.ndarray:
-        with self._lock:
-            return self.servos.pos.copy()
 
     def torque_enabled(self) -> np.ndarray:
         """Which servos get pulses right now (n_actuators,) bool."""

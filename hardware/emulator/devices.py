@@ -204,7 +204,7 @@ class FeetechDevice(EmulatedDevice):
     def _refresh(self) -> None:
         reading = self.reading_units()
         scale = self.mounting.scale_units_per_rad * self.mounting.direction
-        speed = np.rint(self.servos.vel * scale).astype(int)
+        speed = np.rint(self.servos.horn_vel_rad_s * scale).astype(int)
         load = np.rint(self.servos.effort * self.mounting.direction * 1000).astype(int)
         for i, sid in enumerate(self.ids):
             r = self.bus[sid].regs

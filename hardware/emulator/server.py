@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from hardware.emulator.coupling import BodyCoupling
 from hardware.emulator.devices import DEVICES, EmulatedDevice
 from hardware.emulator.dynamics import ServoBank, ServoParams
 from hardware.emulator.firmware import AppliedCommand
@@ -137,7 +138,7 @@ def pty_baud(fd: int) -> int | None:
         return None
 
 
-class Emulator(PtyDevice):
+class Emulator(BodyCoupling, PtyDevice):
     """An emulated arm on a pty. Use as a context manager, or ``start()`` / ``stop()``."""
 
     def __init__(
@@ -208,7 +209,6 @@ class Emulator(PtyDevice):
         self.device_path = ""
         self.host_baud: int | None = None
         self._iterations = 0
-        self._external: dict[int, tuple[float, float]] = {}  # index → physical stop (rad)
         self._rx_at_s = 0.0  # when the device last received bytes (command latency bookkeeping)
 
     # ---- lifecycle ------------------------------------------------------------------------
@@ -384,7 +384,6 @@ class Emulator(PtyDevice):
             self._device.tick(t_next)
             target, powered = self._device.drive()
             self.servos.advance(t, t_next, target, powered)
-            self._hold_external()
             t = t_next
             settled = (
                 t < now
@@ -400,7 +399,6 @@ class Emulator(PtyDevice):
                 jump = max(t, math.floor(jump / tick) * tick) if jump < now else now
                 if jump > t:
                     self.servos.advance(t, jump, target, powered)
-                    self._hold_external()
                     t = jump
         self._last_step_s = now
 
@@ -553,35 +551,6 @@ class Emulator(PtyDevice):
         """Integrate up to now before anyone looks (lock held; no-op before start)."""
         if self._device is not None and self._running:
             self._advance(self.now_s(), exact=False)
-
-    def constrain(self, index: int, lower_rad: float | None, upper_rad: float | None) -> None:
-        """An outside body stops servo ``index`` (physical angle) at these bounds: a cube in the
-        gripper. The mock world's physics sets it; the servo stalls there and reads there, as a
-        real hobby servo's potentiometer does. ``None, None`` releases it."""
-        with self._lock:
-            self._catch_up()
-            if lower_rad is None and upper_rad is None:
-                self._external.pop(index, None)
-            else:
-                lo = -math.inf if lower_rad is None else lower_rad
-                hi = math.inf if upper_rad is None else upper_rad
-                self._external[index] = (lo, hi)
-                self._hold_external()
-
-    def _hold_external(self) -> None:
-        for i, (lo, hi) in self._external.items():
-            p = self.servos.pos[i]
-            if p < lo or p > hi:
-                self.servos.pos[i] = min(max(p, lo), hi)
-                self.servos.vel[i] = 0.0
-
-    def true_positions_rad(self) -> np.ndarray:
-        """The PHYSICAL joint angles (n_actuators,): where the links really are, for rendering
-        and for tests. With a plant's joint offsets (``hardware.plant``) the host reads
-        ``physical - offset``; a mock world renders these angles with the plant's links."""
-        with self._lock:
-            self._catch_up()
-            return self.servos.pos.copy()
 
     def torque_enabled(self) -> np.ndarray:
         """Which servos are powered right now (n_actuators,) bool."""

@@ -2,13 +2,12 @@
 
 * ``SimWorld``: the ``SimArm``'s own MuJoCo scene; truth from its state.
 * ``MockPhysics``: the mock arm's physics, in the mock arm's own process beside the emulator.
-  The emulator decides where the servos are (its true, physical angles after dynamics, faults
-  and latency); MuJoCo decides what the world does about it: the arm is driven kinematically
-  from those angles, the gripper's fingers by a force-limited actuator, and contacts, grasps and
-  a falling cube are simulated. A cube between the fingers stalls the emulated gripper servo
-  where it touches, so the host reads what a real servo's potentiometer would. The scene state
-  is published to free-running virtual cameras (``render_process``), which render it outside
-  the control loop.
+  The emulator decides where each servo drives (its setpoint after the firmware, faults,
+  latency and rate limit); MuJoCo's torque-limited actuators move the arm and the fingers
+  there, with gravity, contacts, grasps and a falling cube, and the emulated servos read the
+  horns back from MuJoCo, as a real servo's potentiometer would (a cube between the fingers
+  stalls the gripper where it touches). The scene state is published to free-running virtual
+  cameras (``render_process``), which render it outside the control loop.
 * ``MockWorld``: the host's side of it (place, clear and the truth over the process boundary).
 * ``CameraWorld``: a real arm. Nobody knows the truth; a person places the objects.
 
@@ -27,6 +26,7 @@ from typing import TYPE_CHECKING, Protocol
 import mujoco
 import numpy as np
 
+from hardware.emulator.coupling import BodyCoupling
 from hardware.spec import ArmSpec
 from sim2real import model as names
 from sim2real.envs.contract import View
@@ -163,9 +163,7 @@ class SimWorld:
         self.objects.clear(d)
         if twin.has_gripper:
             d.qpos[twin.finger_qadr] = d.ctrl[twin.n_joints]
-            d.qvel[
-                self.arm.model.jnt_dofadr[[self.arm.model.joint(n).id for n in names.FINGER_JOINTS]]
-            ] = 0.0
+            d.qvel[twin.finger_dofadr] = 0.0
         mujoco.mj_forward(self.arm.model, self.arm.data)
 
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
@@ -194,16 +192,21 @@ class MockPhysics:
     """The mock arm's world: emulator-driven MuJoCo physics in a real-time thread. It runs in
     the mock arm's own process (``mock_arm``), beside the emulator, never in the host's: after
     each step it hands the scene state and the truth to ``sink`` (shared memory for the
-    free-running cameras and for ``MockWorld.view``)."""
+    free-running cameras and for ``MockWorld.view``).
+
+    The emulator's servos drive the arm as a real servo drives its horn: each servo's setpoint
+    (after the device's firmware, faults, command latency and rate limit) is the target of the
+    twin's torque-limited position actuator, the same actuator the envs train with, built from
+    the plant's servo figures. MuJoCo decides where the horns go, lagging, sagging under gravity
+    and stalling on the cube, and the emulator reads them back from there (``sense``)."""
 
     STEP_CATCH_UP_MAX = 20  # physics steps per wake-up at most (a stalled thread jumps ahead)
-    KINEMATIC_ARMATURE = 1e4  # kg·m²: the emulator's servos, not the contacts, move the arm
 
     def __init__(
         self,
         spec: ArmSpec,
         scene: str,
-        emulator: object,
+        emulator: BodyCoupling,
         rig: RigSpec | None = None,
         sink: StateSink | None = None,
         on_error: Callable[[BaseException], None] | None = None,
@@ -220,23 +223,19 @@ class MockPhysics:
         self.lock = threading.Lock()
         self.sink = sink
         self.on_error = on_error
-        n = spec.n_joints
-        self._n = n
-        self._arm_dofs = np.append(self.twin.dofadr, self.model.joint(names.WRIST_JOINT).dofadr[0])
-        self._grip_index = n if spec.gripper is not None else -1
+        self._n = spec.n_joints
         self._running = False
         self._thread: threading.Thread | None = None
-        self._blocked = False
         self._published_t = -np.inf
         self._requests: queue.SimpleQueue[_Request] = queue.SimpleQueue()
         self.steps = 0
         self.error: BaseException | None = None
-        self._make_arm_kinematic()
-        q = self._positions()
-        self.twin.set_pose(self.data, q, q[self._grip_index] if self._grip_index >= 0 else None)
-        self._pose(q, self._grip_goal(q))
-        self.data.qvel[:] = 0.0
+        emulator.attach_body()
+        q = emulator.true_positions_rad()
+        self.twin.set_pose(self.data, q, self._gripper(q))
+        self._drive(q)
         mujoco.mj_forward(self.model, self.data)
+        self._sense()
 
     # ---- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
@@ -252,41 +251,23 @@ class MockPhysics:
             self._thread = None
 
     # ---- physics ----------------------------------------------------------------------------
-    def _positions(self) -> np.ndarray:
-        return np.asarray(self.emulator.true_positions_rad(), dtype=float)  # type: ignore[attr-defined]
+    def _gripper(self, q_rad: np.ndarray) -> float | None:
+        return float(q_rad[self._n]) if self.twin.has_gripper else None
 
-    def _make_arm_kinematic(self) -> None:
-        """The arm follows the emulator exactly: its joints get an inertia no contact can move
-        and no actuator force, and each step sets the velocity that lands them on the servo
-        angles. (Overwriting ``qpos`` instead would throw away the contact solver's friction,
-        and a grasped cube slips out.)"""
-        m = self.model
-        m.dof_armature[self._arm_dofs] = self.KINEMATIC_ARMATURE
-        m.dof_damping[self._arm_dofs] = 0.0
-        m.dof_frictionloss[self._arm_dofs] = 0.0
-        for i in range(self._n):
-            m.actuator_gainprm[i, 0] = 0.0
-            m.actuator_biasprm[i, :3] = 0.0
+    def _drive(self, setpoint_rad: np.ndarray) -> None:
+        """The servos' setpoints become the actuators' targets."""
+        self.twin.write_ctrl(self.data, setpoint_rad[: self._n], self._gripper(setpoint_rad))
 
-    def _pose(self, q_rad: np.ndarray, grip_rad: float | None) -> None:
-        """Velocities that bring the arm onto ``q_rad`` in one step; the finger actuator pushes
-        to ``grip_rad``."""
-        dt = float(self.model.opt.timestep)
-        goal = np.append(q_rad[: self._n], self._wrist_rad(q_rad))
-        now = np.append(self.twin.joint_positions(self.data), self.data.qpos[self.twin.wrist_qadr])
-        self.data.qvel[self._arm_dofs] = (goal - now) / dt
-        if self._grip_index >= 0 and grip_rad is not None:
-            self.twin.write_ctrl(self.data, q_rad[: self._n], grip_rad)
-
-    def _wrist_rad(self, q_rad: np.ndarray) -> float:
-        j = self.spec.joints
-        return -(j[1].sign * q_rad[1] + j[2].sign * q_rad[2])
+    def _sense(self) -> None:
+        """The horns are where MuJoCo put them: the emulated servos read that."""
+        d = self.data
+        self.emulator.sense(self.twin.actuator_positions(d), self.twin.actuator_velocities(d))
 
     def _run(self) -> None:
         dt = float(self.model.opt.timestep)
         t0 = time.monotonic()
         done = 0
-        prev = self._positions()
+        prev = self.emulator.setpoints_rad()
         try:
             while self._running:
                 now = time.monotonic()
@@ -295,16 +276,15 @@ class MockPhysics:
                     done += behind - self.STEP_CATCH_UP_MAX
                     behind = self.STEP_CATCH_UP_MAX
                 if behind > 0:
-                    q = self._positions()
-                    dq = q - prev
-                    grip = self._grip_goal(q)
+                    setpoint = self.emulator.setpoints_rad()
+                    step = (setpoint - prev) / behind
                     with self.lock:
-                        for k in range(1, behind + 1):  # servo motion spread over the steps
-                            self._pose(prev + dq * (k / behind), grip)
+                        for k in range(1, behind + 1):  # the setpoint's motion over the steps
+                            self._drive(prev + step * k)
                             mujoco.mj_step(self.model, self.data)
                         self.steps += behind
-                        self._gripper_feedback(q)
-                    prev = q
+                    self._sense()
+                    prev = setpoint
                     done += behind
                     self._publish(now)
                 self._serve_requests()
@@ -315,33 +295,6 @@ class MockPhysics:
             log.error("mock physics stopped: %s", exc)
             if self.on_error is not None:
                 self.on_error(exc)
-
-    def _grip_goal(self, q_rad: np.ndarray) -> float | None:
-        """Where the finger actuator pushes: with the fingers on the cube, to the servo's own
-        target (a stalled servo pushes at full torque while its horn stands still); free, to
-        where the emulated servo is, so the fingers move with its dynamics."""
-        if self._grip_index < 0:
-            return None
-        if self._blocked:
-            targets = getattr(self.emulator, "device_targets_rad", None)
-            if targets is not None:
-                return float(targets()[self._grip_index])
-        return float(q_rad[self._grip_index])
-
-    def _gripper_feedback(self, q_rad: np.ndarray) -> None:
-        """While the fingers touch the cube, MuJoCo decides where they are: the emulated servo
-        is pinned there (it stalls, and reads where it stalls); released when they let go."""
-        constrain = getattr(self.emulator, "constrain", None)
-        if self._grip_index < 0 or constrain is None:
-            return
-        touching = self.objects.fingers_on_cube(self.data) > 0
-        if touching:
-            physical = self.twin.gripper_rad(self.data)
-            constrain(self._grip_index, physical, physical)
-            self._blocked = True
-        elif self._blocked:
-            constrain(self._grip_index, None, None)
-            self._blocked = False
 
     def truth(self) -> Truth:
         """Tool, objects and grasp from the current state (caller holds the lock)."""
@@ -388,8 +341,14 @@ class MockPhysics:
         mujoco.mj_forward(self.model, self.data)
 
     def _clear(self) -> None:
-        self.objects.clear(self.data)
-        mujoco.mj_forward(self.model, self.data)
+        """Objects off the table; fingers that a cube squeezed out of their slides go back to
+        where their servo drives them."""
+        d, twin = self.data, self.twin
+        self.objects.clear(d)
+        if twin.has_gripper:
+            d.qpos[twin.finger_qadr] = d.ctrl[twin.n_joints]
+            d.qvel[twin.finger_dofadr] = 0.0
+        mujoco.mj_forward(self.model, d)
 
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
         self._in_physics(lambda: self._place(placement))

@@ -1,0 +1,52 @@
+"""What an emulated arm offers the mock world's physics, which moves its horns.
+
+Both emulated devices (the Python firmware model and the AVR binary) keep their servos in a
+``ServoBank``. Attached to a body (``ServoBank.attach_body``), the bank computes each servo's drive
+setpoint from the commands (latency, dead band, rate limit) and the body (MuJoCo's
+torque-limited position actuators, with gravity and contacts) decides where the horns go; the
+readings come from there, as a real servo's potentiometer reads its real horn.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from hardware.servo_model import ServoBank
+
+
+class BodyCoupling:
+    """Thread-safe access to the servos for a body that moves them; emulators mix it in."""
+
+    servos: ServoBank
+    _lock: threading.RLock
+
+    def _catch_up(self) -> None:
+        """Integrate the servos up to now before anyone looks (lock held). Default: the
+        emulator integrates on its own events and has nothing to catch up."""
+
+    def attach_body(self) -> None:
+        with self._lock:
+            self._catch_up()
+            self.servos.attach_body()
+
+    def setpoints_rad(self) -> np.ndarray:
+        """What each servo drives its horn towards now (n_actuators,), physical rad."""
+        with self._lock:
+            self._catch_up()
+            return self.servos.pos.copy()
+
+    def sense(self, body_rad: np.ndarray, body_vel_rad_s: np.ndarray) -> None:
+        """Where the body holds the horns now (n_actuators,), physical rad and rad/s."""
+        with self._lock:
+            self._catch_up()
+            self.servos.sense(body_rad, body_vel_rad_s)
+
+    def true_positions_rad(self) -> np.ndarray:
+        """The PHYSICAL joint angles (n_actuators,): where the horns really are, for rendering
+        and for tests. With a plant's joint offsets (``hardware.plant``) the host reads
+        ``physical - offset``; a mock world renders these angles with the plant's links."""
+        with self._lock:
+            self._catch_up()
+            return self.servos.horn_rad.copy()
