@@ -6,9 +6,11 @@ Per policy (a shipped name or a run dir), JSON lines:
 * ``deploy_{sim,mock}_success`` and each task's figures (pick: grasped, lift, blind time);
 * ``sim_vs_env_success`` and ``mock_vs_sim_success`` ratios (targets ≥ 0.9 each).
   Paired by default: the sim and mock backends replay the placements of the env's held-out
-  episodes under DR ``none`` (``held_out_placements`` → ``LoopConfig.placements``, as
+  episodes under DR ``none`` (``replayed.held_out_in_view`` → ``LoopConfig.placements``, as
   ``sim2real deploy --placements held-out`` does), so every ratio
   compares the same objects, and ``*_pairs`` count both / first only / second only / neither.
+  For trace, held-out seams the rig cannot see are skipped (``env_success_dr_none_in_view``:
+  the env on the episodes kept, the paired figure).
   (At p ≈ 0.3, two independent 100-episode samples cannot resolve a 0.9 ratio: σ ≈ 0.2.)
   ``--unpaired``: the loop draws its own placements, as ``sim2real deploy`` does;
 * with ``--timing``: a mock run at the spec's own watchdog while a busy-loop process keeps a
@@ -101,9 +103,9 @@ def main() -> None:
 
     from hardware.spec import load_spec
     from sim2real.deploy.loop import LoopConfig
+    from sim2real.deploy.replayed import held_out_in_view
     from sim2real.deploy.runner import DeployOptions, deploy
     from sim2real.evaluate import EvalTarget
-    from sim2real.evaluate.core import held_out_placements
 
     torch.set_num_threads(1)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -171,7 +173,14 @@ def main() -> None:
                 emit(f"env_success_dr_{dr}", ev["success_rate"], "fraction", policy=ref,
                      ci95=ev["success_rate_wilson95"], episodes=args.episodes, machine=machine)  # fmt: skip
             if not args.unpaired:  # DR none's objects: the nominal model, as the sim backend runs
-                placements = tuple(held_out_placements(target, args.episodes))
+                kept, in_view = held_out_in_view(target, args.episodes)
+                placements = tuple(in_view)
+                if kept != seeds:  # trace: seams the rig cannot see are skipped; pair on the rest
+                    ev, outcomes["env_none"] = env_episodes(target, "none", kept)
+                    env["none"] = ev["success_rate"]
+                    emit("env_success_dr_none_in_view", ev["success_rate"], "fraction",
+                         policy=ref, ci95=ev["success_rate_wilson95"], episodes=args.episodes,
+                         skipped=kept[-1] - seeds[0] + 1 - len(kept))  # fmt: skip
         rates = {}
         for backend in backends:
             t0 = time.perf_counter()

@@ -48,3 +48,31 @@ def test_a_real_arm_refuses_replayed_placements(capsys: pytest.CaptureFixture[st
     assert main(args) != 0
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--placements held-out" in err, err
+
+
+def test_replayed_trace_seams_are_the_held_out_ones_the_rig_can_see() -> None:
+    """Some env seams end under the arm's base: replayed, such an episode would never start.
+    The held-out source skips them, as the loop's own draws do, and says which seeds it kept."""
+    from sim2real.deploy.placement import RigSight
+    from sim2real.deploy.replayed import held_out_in_view
+    from sim2real.envs.trace import TraceContract
+    from sim2real.evaluate.core import EvalTarget, held_out_placements
+    from sim2real.model import RigSpec
+    from sim2real.policies import resolve_policy
+
+    target = EvalTarget.load(resolve_policy("trace-ppo"))
+    seeds, kept = held_out_in_view(target, 5)
+    looked = seeds[-1] - target.held_out_seeds(1)[0] + 1  # held-out episodes looked at
+    first = target.held_out_seeds(looked)
+    assert len(seeds) == len(kept) == 5 and looked > 5  # some of the first five were skipped
+    assert seeds == sorted(seeds) and set(seeds) <= set(first)
+    skipped = sorted(set(first) - set(seeds))
+    every = held_out_placements(target, looked)
+    sight = RigSight(target.spec, "trace", TraceContract.objects, RigSpec())
+    try:
+        for seed, placement in zip(seeds, kept, strict=True):
+            np.testing.assert_allclose(placement["seam"], every[first.index(seed)]["seam"])
+            assert sight.unseen(placement) is None
+        assert all(sight.unseen(every[first.index(s)]) is not None for s in skipped)
+    finally:
+        sight.close()
