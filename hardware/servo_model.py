@@ -47,8 +47,8 @@ def lag_step(
     active: np.ndarray | None = None,
 ) -> np.ndarray:
     """The move (n,) of one exact first-order step of length ``dt_s`` towards ``goal_rad``,
-    capped at ``max_speed_rad_s * dt_s`` (a time constant of 0: no lag, the rate limit alone); zero where the error is inside the dead band or where
-    ``active`` is False (torque off)."""
+    capped at ``max_speed_rad_s * dt_s`` (a time constant of 0: no lag, the rate limit alone);
+    zero where the error is inside the dead band or where ``active`` is False (torque off)."""
     err = goal_rad - pos_rad
     moving = np.abs(err) > deadband_rad
     if active is not None:
