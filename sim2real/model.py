@@ -455,6 +455,13 @@ class ArmTwin:
         if self.has_gripper and gripper_rad is not None:
             data.ctrl[self.n_joints] = gripper_rad_to_finger_m(self.spec, gripper_rad)
 
+    def unjam_fingers(self, data: mujoco.MjData) -> None:
+        """Fingers back at rest where their actuator drives them (a simulated cube squeezed out
+        of the fingers can leave them jammed); the caller runs mj_forward."""
+        if self.has_gripper:
+            data.qpos[self.finger_qadr] = data.ctrl[self.n_joints]
+            data.qvel[self.finger_dofadr] = 0.0
+
     def joint_positions(self, data: mujoco.MjData) -> np.ndarray:
         return data.qpos[self.qadr]
 

@@ -159,11 +159,8 @@ class SimWorld:
     def clear(self) -> None:
         """Objects off the table, and the fingers reset to where their servo drives them: a
         simulated cube squeezed out of the fingers can leave them jammed."""
-        d, twin = self.arm.data, self.arm.twin
-        self.objects.clear(d)
-        if twin.has_gripper:
-            d.qpos[twin.finger_qadr] = d.ctrl[twin.n_joints]
-            d.qvel[twin.finger_dofadr] = 0.0
+        self.objects.clear(self.arm.data)
+        self.arm.twin.unjam_fingers(self.arm.data)
         mujoco.mj_forward(self.arm.model, self.arm.data)
 
     def view(self, actuators_rad: np.ndarray, commanded_rad: np.ndarray | None) -> View | None:
@@ -343,12 +340,9 @@ class MockPhysics:
     def _clear(self) -> None:
         """Objects off the table; fingers that a cube squeezed out of their slides go back to
         where their servo drives them."""
-        d, twin = self.data, self.twin
-        self.objects.clear(d)
-        if twin.has_gripper:
-            d.qpos[twin.finger_qadr] = d.ctrl[twin.n_joints]
-            d.qvel[twin.finger_dofadr] = 0.0
-        mujoco.mj_forward(self.model, d)
+        self.objects.clear(self.data)
+        self.twin.unjam_fingers(self.data)
+        mujoco.mj_forward(self.model, self.data)
 
     def new_episode(self, placement: dict[str, np.ndarray]) -> None:
         self._in_physics(lambda: self._place(placement))
