@@ -481,11 +481,8 @@ class DeployLoop:
             return placement
         if self._sight is None:
             from sim2real.deploy.placement import RigSight
-            from sim2real.envs import TASKS
-            from sim2real.model import RigSpec
 
-            scene = TASKS[self.io.task].scene
-            self._sight = RigSight(self.decoder.spec, scene, contract.objects, RigSpec())
+            self._sight = RigSight.for_task(self.decoder.spec, self.io.task, contract.objects)
         why: str | None = None
         for _ in range(self.MAX_PLACEMENT_DRAWS):
             self._hold()  # a render per draw: keep the watchdogs fed

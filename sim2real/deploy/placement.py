@@ -42,6 +42,13 @@ class RigSight:
         self.layout = layout or MarkerLayout.for_spec(spec)
         self._seq = 0
 
+    @classmethod
+    def for_task(cls, spec: ArmSpec, task: str, objects: tuple[str, ...]) -> RigSight:
+        """The default rig (what the sim and mock worlds build) looking at ``task``'s scene."""
+        from sim2real.envs import TASKS
+
+        return cls(spec, TASKS[task].scene, objects, RigSpec())
+
     def unseen(self, placement: dict[str, np.ndarray]) -> str | None:
         """None when both cameras find every object of ``placement`` (arm at home), else which
         ones they miss. Fresh trackers each call: one pair is all a decision needs."""

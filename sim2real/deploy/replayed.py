@@ -41,9 +41,7 @@ def held_out_in_view(
     ``episodes``. ``evaluate`` on these seeds is then the paired figure."""
     from sim2real.deploy.placement import RigSight
     from sim2real.deploy.policy_io import policy_io
-    from sim2real.envs import TASKS
     from sim2real.evaluate.core import held_out_placements
-    from sim2real.model import RigSpec
 
     io = policy_io(target.spec, target.policy.meta)
     contract = io.contract
@@ -51,7 +49,7 @@ def held_out_in_view(
         return target.held_out_seeds(episodes), held_out_placements(target, episodes)
     pool = IN_VIEW_POOL * episodes
     seeds, drawn = target.held_out_seeds(pool), held_out_placements(target, pool)
-    sight = RigSight(target.spec, TASKS[io.task].scene, contract.objects, RigSpec())
+    sight = RigSight.for_task(target.spec, io.task, contract.objects)
     kept: list[tuple[int, dict[str, np.ndarray]]] = []
     try:
         for seed, placement in zip(seeds, drawn, strict=True):
