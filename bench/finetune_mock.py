@@ -118,6 +118,8 @@ def main() -> None:
     ap.add_argument("--utd", type=float, default=LEARNER_DEFAULTS["utd"])
     ap.add_argument("--learning-starts", type=int, default=LEARNER_DEFAULTS["learning_starts"])
     ap.add_argument("--actor-starts", type=int, default=LEARNER_DEFAULTS["actor_starts"])
+    ap.add_argument("--relabel", type=float, default=None, help="default: the task's")
+    ap.add_argument("--noise-std", type=float, default=None, help="default: the source's")
     ap.add_argument("--eval-every", type=float, default=1.5, help="arm minutes")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
@@ -136,6 +138,7 @@ def main() -> None:
     common = {
         "policy": args.policy, "plant": args.plant, "algo": args.algo or "source's",
         "mix_sim_buffer": args.mix_sim_buffer, "utd": args.utd, "actor_starts": args.actor_starts,
+        "relabel": args.relabel, "noise_std": args.noise_std,
         "watchdog_s": args.watchdog_s or spec.safety.watchdog_timeout_s,
         "machine": f"{platform.machine()} {os.cpu_count()} cpu",
         "date": time.strftime("%Y-%m-%d"),
@@ -159,7 +162,7 @@ def main() -> None:
             deploy=opts,
             minutes=args.minutes, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
             utd=args.utd, learning_starts=args.learning_starts, actor_starts=args.actor_starts,
-            keys=False,
+            relabel=args.relabel, noise_std=args.noise_std, keys=False,
             eval_every_min=args.eval_every, eval_episodes=args.eval_episodes, seed=seed,
             start_timeout_s=30.0,
         )  # fmt: skip

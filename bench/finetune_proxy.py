@@ -83,6 +83,7 @@ def main() -> None:
     from sim2real.finetune.checkpoint import resolve
     from sim2real.finetune.defaults import LEARNER_DEFAULTS
     from sim2real.finetune.learner import Learner, LearnerConfig, RewardShaper, SimBufferConfig
+    from sim2real.finetune.relabel import goal_fields
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("policy")
@@ -100,6 +101,7 @@ def main() -> None:
     p.add_argument("--no-penalty", action="store_true", help="drop the action-rate penalty")
     p.add_argument("--mix-sim-buffer", action="store_true")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--relabel", type=float, default=0.0, help="hindsight-goal share of a batch")
     a = p.parse_args()
 
     src = resolve(a.policy, a.algo)
@@ -119,7 +121,8 @@ def main() -> None:
         algo=algo, source_algo=src.algo, model_zip=str(src.model_zip), obs_stats=src.obs_stats,
         learning_starts=a.learning_starts, utd=a.utd, seed=a.seed, sim_buffer=sim,
         actor_starts=a.actor_delay, learning_rate=a.lr,
-        action_rate_penalty=penalty,
+        action_rate_penalty=penalty, relabel_ratio=a.relabel,
+        goal_fields=goal_fields(src.config) if a.relabel > 0 else None,
     )  # fmt: skip
     t0 = time.monotonic()
     learner = Learner(cfg)

@@ -61,6 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--noise-std", type=float, default=None,
         help="DDPG/TD3 exploration noise std on the normalised actions (default: the source's)",
     )  # fmt: skip
+    parser.add_argument(
+        "--relabel", type=float, default=None,
+        help="share of every batch given a goal the tool reached later in its episode (hindsight "
+        f"relabelling; default: {LEARNER_DEFAULTS['relabel']} for reach, 0 for tasks without goals)",
+    )  # fmt: skip
     parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
     parser.add_argument("--batch-size", type=int, default=None)
     parser.add_argument("--learner-nice", type=int, default=10)
@@ -123,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         mix_sim_buffer=args.mix_sim_buffer, sim_buffer_steps=args.sim_buffer_steps,
         resume=args.resume, keys=args.keys, checkpoint_every=args.checkpoint_every,
         learning_starts=args.learning_starts, utd=args.utd, actor_starts=args.actor_starts,
-        learning_rate=args.learning_rate, noise_std=args.noise_std,
+        learning_rate=args.learning_rate, noise_std=args.noise_std, relabel=args.relabel,
         publish_every=args.publish_every,
         batch_size=args.batch_size, learner_nice=args.learner_nice,
         success_window=args.success_window, eval_every_min=args.eval_every,

@@ -13,4 +13,6 @@ LEARNER_DEFAULTS: dict[str, float | int] = {
     "utd": 1.0,  # gradient steps per online transition
     "learning_starts": 200,  # online transitions before the first gradient step
     "actor_starts": 0,  # online transitions of critic-only updates before the actor's first
+    # share of every online batch given a goal reached later in its episode (tasks with goals)
+    "relabel": 0.8,
 }

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import Sim2RealError
+from sim2real.finetune.relabel import EpisodeIndex, GoalFields, Relabeler
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,9 @@ class LearnerConfig:
     actor_starts: int = 0
     learning_rate: float | None = None  # None: the source run's
     action_rate_penalty: float = 0.0  # the source run's training shaping (sim buffer rewards)
+    # hindsight goals: this share of every online batch gets a goal reached later in its episode
+    relabel_ratio: float = 0.0
+    goal_fields: GoalFields | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -124,9 +128,51 @@ def _mixed_buffer_class() -> Any:
     from stable_baselines3.common.buffers import ReplayBuffer
 
     class MixedReplayBuffer(ReplayBuffer):
-        """Online transitions; with ``sim`` set, half of every batch comes from it."""
+        """Online transitions; with ``sim`` set, half of every batch comes from it. With
+        ``relabel`` set, a share of the online rows get a goal from later in their episode."""
 
         sim: ReplayBuffer | None = None
+        relabel: Relabeler | None = None
+        episodes: EpisodeIndex | None = None
+
+        def use_relabeler(self, relabeler: Relabeler) -> None:
+            self.relabel = relabeler
+            self.episodes = EpisodeIndex(self.buffer_size)
+            n = self.size()
+            start = self.pos if self.full else 0
+            for k in range(n):  # rows in insertion order
+                row = (start + k) % self.buffer_size
+                self.episodes.add(row, self.observations[row, 0], self.next_observations[row, 0])
+
+        def add(self, obs: Any, next_obs: Any, action: Any, reward: Any, done: Any,
+                infos: Any) -> None:  # fmt: skip
+            if self.episodes is not None:
+                self.episodes.add(self.pos, obs[0], next_obs[0])
+            super().add(obs, next_obs, action, reward, done, infos)
+
+        def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> Any:
+            if self.relabel is None or self.episodes is None:
+                return super()._get_samples(batch_inds, env)
+            from stable_baselines3.common.type_aliases import ReplayBufferSamples
+
+            obs = self.observations[batch_inds, 0].copy()
+            next_obs = self.next_observations[batch_inds, 0].copy()
+            rewards = self.rewards[batch_inds, 0].copy()
+            pick = np.flatnonzero(np.random.random_sample(len(batch_inds)) < self.relabel.ratio)
+            future = self.episodes.future(batch_inds[pick], np.random.default_rng(
+                np.random.randint(2**31)))  # fmt: skip
+            ok = future >= 0
+            rows, future = pick[ok], future[ok]
+            if len(rows):
+                o, n = obs[rows], next_obs[rows]
+                rewards[rows] = self.relabel.relabel(
+                    o, n, self.actions[batch_inds[rows], 0], self.next_observations[future, 0]
+                )
+                obs[rows], next_obs[rows] = o, n
+            data = (obs, self.actions[batch_inds, 0], next_obs,
+                    self.dones[batch_inds, 0].reshape(-1, 1),
+                    rewards.reshape(-1, 1))  # fmt: skip
+            return ReplayBufferSamples(*tuple(map(self.to_torch, data)))
 
         def sample(self, batch_size: int, env: Any = None) -> Any:
             if self.sim is None or self.sim.size() == 0:
@@ -193,6 +239,15 @@ class Learner:
         noise = getattr(model, "action_noise", None)
         sigma = getattr(getattr(noise, "base_noise", noise), "_sigma", None)
         self.noise_std = float(np.mean(sigma)) if sigma is not None else 0.1
+        if cfg.relabel_ratio > 0:
+            if cfg.goal_fields is None:
+                raise LearnerError("goal relabelling needs the task's goal fields")
+            nz = self.normalizer
+            self.buffer.use_relabeler(Relabeler(
+                cfg.goal_fields, cfg.relabel_ratio,
+                None if nz is None else nz.mean, None if nz is None else np.sqrt(nz.var + nz.epsilon),
+                cfg.action_rate_penalty,
+            ))  # fmt: skip
         if cfg.sim_buffer is not None:
             self.buffer.sim = self._collect_sim(cfg.sim_buffer)
 

@@ -62,6 +62,7 @@ class FinetuneOptions:
     actor_starts: int = int(LEARNER_DEFAULTS["actor_starts"])  # online transitions: critic only
     learning_rate: float | None = None  # None: the source run's
     noise_std: float | None = None  # DDPG/TD3 exploration std (normalised actions); None: source's
+    relabel: float | None = None  # hindsight-goal share of a batch; None: the task's default
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
     learner_nice: int = 10
@@ -89,6 +90,10 @@ class FinetuneOptions:
             raise ConfigError(f"--noise-std must be in [0, 1], got {self.noise_std!r}")
         if self.actor_starts < 0:
             raise ConfigError(f"--actor-starts must be >= 0, got {self.actor_starts}")
+        if self.relabel is not None and not (
+            math.isfinite(self.relabel) and 0 <= self.relabel <= 1
+        ):
+            raise ConfigError(f"--relabel must be in [0, 1], got {self.relabel!r}")
         if self.learning_rate is not None and not (
             math.isfinite(self.learning_rate) and 0 < self.learning_rate < 1
         ):
@@ -161,8 +166,10 @@ class _Run:
     # ---- the learner ------------------------------------------------------------------------
     def learner_config(self) -> Any:
         from sim2real.finetune.learner import Learner, LearnerConfig, SimBufferConfig
+        from sim2real.finetune.relabel import default_ratio, goal_fields
 
         fo, src = self.fo, self.src
+        ratio = default_ratio(src.config) if fo.relabel is None else fo.relabel
         model_zip, replay = str(src.model_zip), None
         if self.resumed:
             ckpt = self.dir.run.checkpoint_dir / str(self.state["checkpoint"])
@@ -195,6 +202,8 @@ class _Run:
             nice=fo.learner_nice,
             seed=fo.seed + int(self.state["segments"]),
             sim_buffer=sim,
+            relabel_ratio=ratio,
+            goal_fields=goal_fields(src.config) if ratio > 0 else None,
         )
 
     def checkpoint(self, learner: Any, final: bool = False) -> None:
