@@ -96,7 +96,7 @@ def main() -> None:
     p.add_argument("--learning-starts", type=int, default=LEARNER_DEFAULTS["learning_starts"])
     p.add_argument("--actor-delay", type=int, default=LEARNER_DEFAULTS["actor_starts"])
     p.add_argument("--publish-every", type=int, default=20)
-    p.add_argument("--noise", type=float, default=None, help="exploration std (default: source's)")
+    p.add_argument("--noise", type=float, default=None, help="exploration std")
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--no-penalty", action="store_true", help="drop the action-rate penalty")
     p.add_argument("--mix-sim-buffer", action="store_true")
@@ -130,7 +130,7 @@ def main() -> None:
     normalizer = ObsNormalizer.from_stats(src.obs_stats)
     norm = normalizer or (lambda o: np.asarray(o, np.float32))
     actor = NumpyActor(learner.kind, learner.shapes, learner.flat_actor(), normalizer,
-                       a.noise if a.noise is not None else learner.noise_std)  # fmt: skip
+                       a.noise if a.noise is not None else LEARNER_DEFAULTS["noise_std"])  # fmt: skip
     rng = np.random.default_rng(a.seed)
     setting = {k: v for k, v in vars(a).items() if k not in ("policy",)}
     learn_s = 0.0

@@ -59,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--noise-std", type=float, default=None,
-        help="DDPG/TD3 exploration noise std on the normalised actions (default: the source's)",
+        help="DDPG/TD3 exploration noise std on the normalised actions "
+        f"(default: {LEARNER_DEFAULTS['noise_std']})",
     )  # fmt: skip
     parser.add_argument(
         "--relabel", type=float, default=None,

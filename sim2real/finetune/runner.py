@@ -61,7 +61,7 @@ class FinetuneOptions:
     utd: float = float(LEARNER_DEFAULTS["utd"])  # gradient steps per online transition
     actor_starts: int = int(LEARNER_DEFAULTS["actor_starts"])  # online transitions: critic only
     learning_rate: float | None = None  # None: the source run's
-    noise_std: float | None = None  # DDPG/TD3 exploration std (normalised actions); None: source's
+    noise_std: float | None = None  # DDPG/TD3 exploration std (normalised actions); None: default
     relabel: float | None = None  # hindsight-goal share of a batch; None: the task's default
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
@@ -235,7 +235,9 @@ class _Run:
             stack.callback(learner.close)
             info = learner.wait_ready()
             normalizer = ObsNormalizer.from_stats(self.src.obs_stats)
-            noise = info["noise_std"] if self.fo.noise_std is None else self.fo.noise_std
+            noise = self.fo.noise_std
+            if noise is None:
+                noise = float(LEARNER_DEFAULTS["noise_std"])
             actor = NumpyActor(info["kind"], info["shapes"], learner.initial_weights(),
                                normalizer, noise)  # fmt: skip
             self.report({"event": "learner_ready", "algo": self.algo, **info,
