@@ -123,6 +123,8 @@ def main() -> None:
     ap.add_argument("--eval-every", type=float, default=1.5, help="arm minutes")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
+    ap.add_argument("--spec", type=Path, default=None, help="an adapted policy's fitted spec")
+    ap.add_argument("--joint-calibration", type=Path, default=None, help="and its calibration")
     ap.add_argument("--out", type=Path, default=Path("runs/bench-finetune"))
     ap.add_argument(
         "--reference-episodes", type=int, default=10,
@@ -130,7 +132,7 @@ def main() -> None:
     )  # fmt: skip
     args = ap.parse_args()
 
-    spec = load_spec()
+    spec = load_spec(args.spec)
     card = shipped().get(args.policy)
     sim_success = None
     if card is not None:
@@ -143,13 +145,14 @@ def main() -> None:
         "machine": f"{platform.machine()} {os.cpu_count()} cpu",
         "date": time.strftime("%Y-%m-%d"),
     }  # fmt: skip
-    tag = f"{args.policy}-{args.plant}{'-mix' if args.mix_sim_buffer else ''}"
+    tag = f"{Path(args.policy).name}-{args.plant}{'-mix' if args.mix_sim_buffer else ''}"
     curves: dict[int, list[dict[str, Any]]] = {}
     for seed in range(args.seeds):
         out = args.out / f"{tag}-s{seed}"
         if out.exists():
             shutil.rmtree(out)
-        opts = DeployOptions(backend="mock", plant=args.plant, watchdog_s=args.watchdog_s)
+        opts = DeployOptions(backend="mock", plant=args.plant, watchdog_s=args.watchdog_s,
+                             joint_calibration=args.joint_calibration)  # fmt: skip
         ref = None
         if args.reference_episodes > 0:
             ref = _reference(args.policy, spec, opts, args.reference_episodes)
