@@ -119,7 +119,7 @@ def main() -> None:
     ap.add_argument("--learning-starts", type=int, default=LEARNER_DEFAULTS["learning_starts"])
     ap.add_argument("--actor-starts", type=int, default=LEARNER_DEFAULTS["actor_starts"])
     ap.add_argument("--relabel", type=float, default=None, help="default: the task's")
-    ap.add_argument("--noise-std", type=float, default=None, help="default: the source's")
+    ap.add_argument("--noise-std", type=float, default=None, help="default: finetune's")
     ap.add_argument("--eval-every", type=float, default=1.5, help="arm minutes")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")

@@ -83,7 +83,7 @@ def main() -> None:
     from sim2real.finetune.checkpoint import resolve
     from sim2real.finetune.defaults import LEARNER_DEFAULTS
     from sim2real.finetune.learner import Learner, LearnerConfig, RewardShaper, SimBufferConfig
-    from sim2real.finetune.relabel import goal_fields
+    from sim2real.finetune.relabel import default_ratio, goal_fields
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("policy")
@@ -101,7 +101,7 @@ def main() -> None:
     p.add_argument("--no-penalty", action="store_true", help="drop the action-rate penalty")
     p.add_argument("--mix-sim-buffer", action="store_true")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--relabel", type=float, default=0.0, help="hindsight-goal share of a batch")
+    p.add_argument("--relabel", type=float, default=None, help="default: finetune's for the task")
     a = p.parse_args()
 
     src = resolve(a.policy, a.algo)
@@ -117,12 +117,13 @@ def main() -> None:
         sim = SimBufferConfig(str(src.config["env_id"]), env_kwargs, load_spec(None),
                               seed=a.seed)  # fmt: skip
     penalty = 0.0 if a.no_penalty else Learner.action_rate_penalty(src.config)
+    relabel = default_ratio(src.config) if a.relabel is None else a.relabel
     cfg = LearnerConfig(
         algo=algo, source_algo=src.algo, model_zip=str(src.model_zip), obs_stats=src.obs_stats,
         learning_starts=a.learning_starts, utd=a.utd, seed=a.seed, sim_buffer=sim,
         actor_starts=a.actor_delay, learning_rate=a.lr,
-        action_rate_penalty=penalty, relabel_ratio=a.relabel,
-        goal_fields=goal_fields(src.config) if a.relabel > 0 else None,
+        action_rate_penalty=penalty, relabel_ratio=relabel,
+        goal_fields=goal_fields(src.config) if relabel > 0 else None,
     )  # fmt: skip
     t0 = time.monotonic()
     learner = Learner(cfg)

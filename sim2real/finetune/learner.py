@@ -134,9 +134,11 @@ def _mixed_buffer_class() -> Any:
         sim: ReplayBuffer | None = None
         relabel: Relabeler | None = None
         episodes: EpisodeIndex | None = None
+        _rng: np.random.Generator
 
         def use_relabeler(self, relabeler: Relabeler) -> None:
             self.relabel = relabeler
+            self._rng = np.random.default_rng(np.random.randint(2**31))  # seeded with the model
             self.episodes = EpisodeIndex(self.buffer_size)
             n = self.size()
             start = self.pos if self.full else 0
@@ -158,9 +160,8 @@ def _mixed_buffer_class() -> Any:
             obs = self.observations[batch_inds, 0].copy()
             next_obs = self.next_observations[batch_inds, 0].copy()
             rewards = self.rewards[batch_inds, 0].copy()
-            pick = np.flatnonzero(np.random.random_sample(len(batch_inds)) < self.relabel.ratio)
-            future = self.episodes.future(batch_inds[pick], np.random.default_rng(
-                np.random.randint(2**31)))  # fmt: skip
+            pick = np.flatnonzero(self._rng.random(len(batch_inds)) < self.relabel.ratio)
+            future = self.episodes.future(batch_inds[pick], self._rng)
             ok = future >= 0
             rows, future = pick[ok], future[ok]
             if len(rows):

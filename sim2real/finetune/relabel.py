@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import ConfigError
+from sim2real.finetune.defaults import LEARNER_DEFAULTS
 
 RewardFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -76,8 +77,6 @@ RELABEL_TASKS: dict[str, Callable[[Sequence[Mapping[str, Any]], str], GoalFields
 
 def default_ratio(config: Mapping[str, Any]) -> float:
     """``--relabel``'s default: the measured share for a task that can be relabelled, else 0."""
-    from sim2real.finetune.defaults import LEARNER_DEFAULTS
-
     return float(LEARNER_DEFAULTS["relabel"]) if str(config.get("task")) in RELABEL_TASKS else 0.0
 
 
@@ -161,36 +160,31 @@ class Relabeler:
 
 class EpisodeIndex:
     """Episode membership of a replay buffer's rows, inferred from ``obs[t] == next_obs[t-1]``.
-    Rows are numbered by insertion; a wrapped buffer forgets the overwritten rows' episodes."""
+    Rows are overwritten in insertion order, so an episode's newest row outlives its others: a
+    row still labelled with an episode always finds that episode's newest row."""
 
     def __init__(self, capacity: int) -> None:
         self.capacity = int(capacity)
         self.episode = np.full(self.capacity, -1, np.int64)
-        self.last_row: dict[int, int] = {}  # episode -> its newest row (buffer index)
+        # newest row of each live episode, at episode % capacity (at most capacity live ones)
+        self._last = np.full(self.capacity, -1, np.int64)
         self._n_episodes = 0
         self._prev_next: np.ndarray | None = None
 
     def add(self, row: int, obs: np.ndarray, next_obs: np.ndarray) -> None:
-        same = self._prev_next is not None and np.array_equal(obs, self._prev_next)
-        if not same:
+        if self._prev_next is None or not np.array_equal(obs, self._prev_next):
             self._n_episodes += 1
         ep = self._n_episodes - 1
-        old = int(self.episode[row])
-        if old >= 0 and self.last_row.get(old) == row:
-            del self.last_row[old]
         self.episode[row] = ep
-        self.last_row[ep] = row
+        self._last[ep % self.capacity] = row
         self._prev_next = np.array(next_obs, copy=True)
 
     def future(self, rows: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """A row at or after each of ``rows`` in its episode (uniform), or -1 where none is
-        known (its episode was overwritten)."""
-        out = np.full(len(rows), -1, np.int64)
-        for i, r in enumerate(rows):
-            ep = int(self.episode[r])
-            last = self.last_row.get(ep, -1)
-            if ep < 0 or last < 0:
-                continue
-            span = (last - r) % self.capacity
-            out[i] = (r + int(rng.integers(0, span + 1))) % self.capacity
-        return out
+        """A row at or after each of ``rows`` in its episode (uniform), or -1 for a row with no
+        episode."""
+        rows = np.asarray(rows, np.int64)
+        ep = self.episode[rows]
+        last = self._last[ep % self.capacity]
+        span = (last - rows) % self.capacity
+        out = (rows + (rng.random(len(rows)) * (span + 1)).astype(np.int64)) % self.capacity
+        return np.where(ep >= 0, out, -1)

@@ -235,12 +235,12 @@ class _Run:
             stack.callback(learner.close)
             info = learner.wait_ready()
             normalizer = ObsNormalizer.from_stats(self.src.obs_stats)
-            noise = self.fo.noise_std
-            if noise is None:
-                noise = float(LEARNER_DEFAULTS["noise_std"])
+            noise = float(LEARNER_DEFAULTS["noise_std"] if self.fo.noise_std is None
+                          else self.fo.noise_std)  # fmt: skip
             actor = NumpyActor(info["kind"], info["shapes"], learner.initial_weights(),
                                normalizer, noise)  # fmt: skip
-            self.report({"event": "learner_ready", "algo": self.algo, **info,
+            self.report({"event": "learner_ready", "algo": self.algo,
+                         **info, "noise_std": noise,  # what explores, not the source's
                          "learner_pid": learner.pid, "resumed": self.resumed,
                          "env_steps": self.state["env_steps"],
                          "episodes": self.state["episodes"]})  # fmt: skip
