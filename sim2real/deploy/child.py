@@ -1,4 +1,5 @@
-"""What the parent of a deploy child process (the mock arm, perception) says when it dies.
+"""What the parent of a deploy child process (the mock arm, perception) says when it dies, and
+the environment it starts the child in.
 
 One place for the one-line error a child prints before it exits, and for the line the parent
 raises from the child's exit status and the last line of its stderr.
@@ -10,6 +11,16 @@ import contextlib
 import os
 import signal
 from typing import IO
+
+# numpy's BLAS (OpenBLAS here) and the OpenMP runtimes read these when they load
+ONE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def child_env() -> dict[str, str]:
+    """The environment for a child of the control loop (the mock arm, render and perception
+    processes): this one, with single-threaded BLAS and OpenMP (why:
+    ``realtime.single_threaded_blas``)."""
+    return {**os.environ, **ONE_THREAD_ENV}
 
 
 def one_line(exc: BaseException) -> str:

@@ -30,6 +30,7 @@ from hardware.arm import ArmBase
 from hardware.errors import HardwareError
 from sim2real.deploy.perception import Perception
 from sim2real.deploy.policy_io import PolicyIO
+from sim2real.deploy.realtime import QuietGC, single_threaded_blas
 from sim2real.envs.contract import DeployContract, MissingEstimateError, Percept, View
 from sim2real.errors import ConfigError, Sim2RealError
 from sim2real.observation import command_readings
@@ -280,129 +281,135 @@ class DeployLoop:
         spec = self.decoder.spec
         if cfg.placements:  # before the arm moves: a bad placement is a config error, not a stop
             self._check_placements(self.io.new_contract(spec, cfg.rate_hz), cfg.placements)
-        try:
-            for episode in range(cfg.episodes):
-                contract = self.io.new_contract(spec, cfg.rate_hz)
-                if not cfg.dry_run:  # up, then open: a held cube drops, a new one is clear
-                    self._home()
-                self.world.clear()  # sim and mock: last episode's objects off the table
-                percept = self._start(contract, episode, rng)
-                contract.begin(percept)
-                targets = self.arm.read_state().positions_rad.copy()
-                prev_action = np.zeros(self.decoder.n_actions)
-                invalid = 0
-                reason: str | None = None
-                sent: np.ndarray | None = None  # the last command, judged one period later
-                next_t = time.perf_counter()
-                last_start = next_t
-                slept = False  # the last period ended in a sleep to next_t
-                self._pipeline(True)
-                for step in range(self.steps):
-                    start = time.perf_counter()
-                    late = start - next_t if slept else math.nan
-                    if slept:
-                        wake_late.append(late)
-                    if step > 0:
-                        periods.append(start - last_start)
-                        if start - last_start > period * (1 + cfg.overrun_warn_fraction):
-                            overruns += 1
-                            log.warning(
-                                "overrun: period %.1f ms (nominal %.1f ms)",
-                                (start - last_start) * 1e3,
-                                period * 1e3,
+        # the cyclic collector runs between episodes, never in a period; BLAS never waits on a
+        # worker thread the loop's priority does not reach
+        with QuietGC() as quiet, single_threaded_blas():
+            try:
+                for episode in range(cfg.episodes):
+                    quiet.between()
+                    contract = self.io.new_contract(spec, cfg.rate_hz)
+                    if not cfg.dry_run:  # up, then open: a held cube drops, a new one is clear
+                        self._home()
+                    self.world.clear()  # sim and mock: last episode's objects off the table
+                    percept = self._start(contract, episode, rng)
+                    contract.begin(percept)
+                    targets = self.arm.read_state().positions_rad.copy()
+                    prev_action = np.zeros(self.decoder.n_actions)
+                    invalid = 0
+                    reason: str | None = None
+                    sent: np.ndarray | None = None  # the last command, judged one period later
+                    next_t = time.perf_counter()
+                    last_start = next_t
+                    slept = False  # the last period ended in a sleep to next_t
+                    self._pipeline(True)
+                    for step in range(self.steps):
+                        start = time.perf_counter()
+                        late = start - next_t if slept else math.nan
+                        if slept:
+                            wake_late.append(late)
+                        if step > 0:
+                            periods.append(start - last_start)
+                            if start - last_start > period * (1 + cfg.overrun_warn_fraction):
+                                overruns += 1
+                                log.warning(
+                                    "overrun: period %.1f ms (nominal %.1f ms)",
+                                    (start - last_start) * 1e3,
+                                    period * 1e3,
+                                )
+                        last_start = start
+                        t0 = time.perf_counter()
+                        state = self.arm.read_state()
+                        t1 = time.perf_counter()
+                        percept = self.perception.perceive(state, time.monotonic())
+                        # the world now (truth or estimates): what the last period's command did
+                        view = self._view(contract, percept, state.positions_rad, sent)
+                        t2 = time.perf_counter()
+                        if step > 0 and view is not None:
+                            reason = contract.score(view, step - 1) or reason
+                        if reason is not None:
+                            log.warning("episode %d stopped: %s", episode, reason)
+                            break
+                        try:
+                            obs = self._observation(
+                                contract, percept, state.positions_rad, targets, prev_action, step
                             )
-                    last_start = start
-                    t0 = time.perf_counter()
-                    state = self.arm.read_state()
-                    t1 = time.perf_counter()
-                    percept = self.perception.perceive(state, time.monotonic())
-                    # the world now (truth or estimates): what the last period's command did
-                    view = self._view(contract, percept, state.positions_rad, sent)
-                    t2 = time.perf_counter()
-                    if step > 0 and view is not None:
-                        reason = contract.score(view, step - 1) or reason
-                    if reason is not None:
-                        log.warning("episode %d stopped: %s", episode, reason)
-                        break
-                    try:
-                        obs = self._observation(
-                            contract, percept, state.positions_rad, targets, prev_action, step
-                        )
-                        action = np.asarray(self.policy(obs), dtype=float)
-                    except MissingEstimateError:
-                        # an estimate went missing (a tracker lost its object): hold still and
-                        # keep the watchdogs fed (the gripper action is absolute: keep it, or a
-                        # held cube drops); a camera that stops delivering raises instead
-                        invalid += 1
-                        obs = np.full(self.builder.size, np.nan, dtype=np.float32)
-                        action = np.zeros(self.decoder.n_actions)
-                        action[self.decoder.spec.n_joints :] = prev_action[
-                            self.decoder.spec.n_joints :
-                        ]
-                    t3 = time.perf_counter()
-                    targets = self.decoder.decode(action, targets)
-                    if cfg.dry_run:  # read and log, send nothing: the filter still judges it
-                        last = self.arm.last_sent_rad
-                        sent = self.arm.safety.filter(targets, targets if last is None else last)
-                    else:
-                        sent = self.arm.command(targets)  # safety once, inside command()
-                    t4 = time.perf_counter()
-                    prev_action = np.clip(action, -1.0, 1.0)
-                    for name, dt in zip(
-                        SECTIONS, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=True
-                    ):
-                        sections[name].append(dt)
-                    self._log_period(
-                        episode, step, t0, obs, action, targets, sent, state.positions_rad,
-                        percept, view, periods[-1] if step > 0 else math.nan, sections, late,
-                    )  # fmt: skip
-                    if self.on_frame is not None:
-                        self.on_frame()
-                    next_t += period
-                    slept = next_t - time.perf_counter() > 0
-                    if slept:
-                        _sleep_until(next_t)
-                    else:
-                        next_t = time.perf_counter()  # do not try to catch up: it bursts
-                else:  # the last command gets one whole period to act, then it is judged
-                    _sleep_until(t4 + period)
-                    reason = self._judge_last(contract, sent) or reason
-                self._pipeline(False)
-                blind += invalid
-                out = contract.outcome()
-                episodes.append(EpisodeRecord(out.success, out.distance_m, out.figures, reason))
-                self._hold()  # before any slow bookkeeping (video encoding): the watchdog waits
-                if self.on_episode is not None:
-                    self.on_episode(episode, out.success, self.log.rows)
-                log.info(
-                    "episode %d: success=%s distance %.4f m %s",
-                    episode,
-                    out.success,
-                    out.distance_m,
-                    out.figures,
-                )
-                self._hold()
-        except KeyboardInterrupt:
-            stopped = "interrupted (Ctrl-C or SIGTERM)"
-            try:
-                self._safe_stop()
-            except KeyboardInterrupt:  # a second Ctrl-C: torque off, keep the log
-                self._save_log()
+                            action = np.asarray(self.policy(obs), dtype=float)
+                        except MissingEstimateError:
+                            # an estimate went missing (a tracker lost its object): hold still and
+                            # keep the watchdogs fed (the gripper action is absolute: keep it, or a
+                            # held cube drops); a camera that stops delivering raises instead
+                            invalid += 1
+                            obs = np.full(self.builder.size, np.nan, dtype=np.float32)
+                            action = np.zeros(self.decoder.n_actions)
+                            action[self.decoder.spec.n_joints :] = prev_action[
+                                self.decoder.spec.n_joints :
+                            ]
+                        t3 = time.perf_counter()
+                        targets = self.decoder.decode(action, targets)
+                        if cfg.dry_run:  # read and log, send nothing: the filter still judges it
+                            last = self.arm.last_sent_rad
+                            sent = self.arm.safety.filter(
+                                targets, targets if last is None else last
+                            )
+                        else:
+                            sent = self.arm.command(targets)  # safety once, inside command()
+                        t4 = time.perf_counter()
+                        prev_action = np.clip(action, -1.0, 1.0)
+                        for name, dt in zip(
+                            SECTIONS, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=True
+                        ):
+                            sections[name].append(dt)
+                        self._log_period(
+                            episode, step, t0, obs, action, targets, sent, state.positions_rad,
+                            percept, view, periods[-1] if step > 0 else math.nan, sections, late,
+                        )  # fmt: skip
+                        if self.on_frame is not None:
+                            self.on_frame()
+                        next_t += period
+                        slept = next_t - time.perf_counter() > 0
+                        if slept:
+                            _sleep_until(next_t)
+                        else:
+                            next_t = time.perf_counter()  # do not try to catch up: it bursts
+                    else:  # the last command gets one whole period to act, then it is judged
+                        _sleep_until(t4 + period)
+                        reason = self._judge_last(contract, sent) or reason
+                    self._pipeline(False)
+                    blind += invalid
+                    out = contract.outcome()
+                    episodes.append(EpisodeRecord(out.success, out.distance_m, out.figures, reason))
+                    self._hold()  # before any slow bookkeeping (video encoding): the watchdog waits
+                    if self.on_episode is not None:
+                        self.on_episode(episode, out.success, self.log.rows)
+                    log.info(
+                        "episode %d: success=%s distance %.4f m %s",
+                        episode,
+                        out.success,
+                        out.distance_m,
+                        out.figures,
+                    )
+                    self._hold()
+            except KeyboardInterrupt:
+                stopped = "interrupted (Ctrl-C or SIGTERM)"
+                try:
+                    self._safe_stop()
+                except KeyboardInterrupt:  # a second Ctrl-C: torque off, keep the log
+                    self._save_log()
+                    raise
+            except Exception as exc:  # any error: hold, park, torque off; keep the log
+                stopped = f"{type(exc).__name__}: " + (str(exc).splitlines() or [""])[0]
+                self._count_watchdog(exc)
+                try:
+                    self._safe_stop()
+                finally:
+                    self._save_log()  # even if a second Ctrl-C cuts the safe stop short
                 raise
-        except Exception as exc:  # any error: hold, park, torque off; keep the log
-            stopped = f"{type(exc).__name__}: " + (str(exc).splitlines() or [""])[0]
-            self._count_watchdog(exc)
-            try:
-                self._safe_stop()
+            else:
+                self._park()
             finally:
-                self._save_log()  # even if a second Ctrl-C cuts the safe stop short
-            raise
-        else:
-            self._park()
-        finally:
-            if self._sight is not None:
-                self._sight.close()
-                self._sight = None
+                if self._sight is not None:
+                    self._sight.close()
+                    self._sight = None
         self._save_log()
         stats = self.arm.safety.stats
         return DeployResult(

@@ -42,7 +42,7 @@ from hardware.emulator.lifecycle import PtyDevice
 from hardware.emulator.server import EmulatorConfig
 from hardware.errors import HardwareError
 from hardware.plant import Plant
-from sim2real.deploy.child import death_line, one_line
+from sim2real.deploy.child import child_env, death_line, one_line
 from sim2real.model import RigSpec
 
 log = logging.getLogger(__name__)
@@ -150,6 +150,7 @@ class MockArmProcess(PtyDevice):
                 stderr=self._stderr,
                 pass_fds=(theirs.fileno(),),
                 close_fds=True,
+                env=child_env(),  # single-threaded BLAS: no worker thread to wait on
             )
         finally:
             theirs.close()

@@ -37,7 +37,7 @@ import numpy as np
 from calibration.kalman import TrackerConfig
 from calibration.triangulate import StereoRig
 from hardware.errors import HardwareError
-from sim2real.deploy.child import death_line, one_line
+from sim2real.deploy.child import child_env, death_line, one_line
 from sim2real.deploy.frames import FramePair
 from sim2real.deploy.perception import (
     MarkerLayout,
@@ -212,6 +212,7 @@ class PerceptionProcess:
             stdout=subprocess.DEVNULL,  # nothing of the child's may land in a --json stdout
             stderr=self._stderr,
             close_fds=True,
+            env=child_env(),  # single-threaded BLAS: no worker thread to wait on
         )
         try:
             assert self._proc.stdin is not None

@@ -11,6 +11,7 @@ asked for less, not more: it stays at normal priority.
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import os
 import threading
@@ -28,6 +29,22 @@ def niced() -> bool:
         return os.getpriority(os.PRIO_PROCESS, 0) > 0
     except (OSError, AttributeError):
         return False
+
+
+@contextlib.contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """numpy's BLAS at one thread in this process inside the block, restored after.
+
+    OpenBLAS splits a matrix-vector product (the numpy actor's 400 x 300 layers) with a worker
+    thread at normal priority, and the caller waits at the product's end for it. A real-time
+    loop whose worker was preempted by the learner or the renderer waited 20-110 ms there: late
+    periods that no scheduler setting of the loop's thread reaches. Between products the idle
+    worker spins on ``sched_yield`` (a third of a core on this 2-core machine). The loop's
+    products are far too small to gain from a second thread."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 @contextlib.contextmanager
@@ -71,3 +88,42 @@ def control_thread_priority(
         for tid, policy, param in raised:
             with contextlib.suppress(OSError):  # a thread that ended meanwhile
                 setter(tid, policy, param)
+
+
+class QuietGC:
+    """Python's cyclic garbage collector kept out of the control periods.
+
+    A full (generation-2) collection walks every tracked object in the process: with MuJoCo, the
+    renderer's clients and a run's logs that was 40-160 ms in the fine-tuning loop, late by two or
+    three periods whatever the loop's priority. Inside the block automatic collection is off and
+    what exists is frozen (``gc.freeze``: never scanned again); ``between()`` collects only what
+    was allocated since (one episode's leftovers, a millisecond or two) and freezes the
+    survivors. Call it where the loop is between periods. Garbage that refcounting frees (nearly
+    all of a period's) goes as usual; a cycle among frozen objects waits until the block ends.
+    Nested blocks defer to the outermost."""
+
+    _depth = 0
+
+    def __enter__(self) -> QuietGC:
+        cls = type(self)
+        cls._depth += 1
+        self._outer = cls._depth == 1
+        if self._outer:
+            self._was_enabled = gc.isenabled()
+            gc.disable()
+            gc.collect()
+            gc.freeze()
+        return self
+
+    def between(self) -> None:
+        """Collect what was allocated since the last call, outside any period."""
+        gc.collect()
+        gc.freeze()
+
+    def __exit__(self, *exc: object) -> None:
+        cls = type(self)
+        cls._depth -= 1
+        if self._outer:
+            gc.unfreeze()
+            if self._was_enabled:
+                gc.enable()

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from hardware.errors import HardwareError
+from sim2real.deploy.child import child_env
 from sim2real.deploy.frames import FramePair
 
 # frame header (float64): per slot [lock, capture_s, seq]; then [newest slot, pairs published]
@@ -354,6 +355,7 @@ class RenderedStereoCameras:
             stdin=subprocess.PIPE,
             stdout=subprocess.DEVNULL,  # nothing of the child's may land in a --json stdout
             close_fds=True,
+            env=child_env(),  # single-threaded BLAS: no worker thread to wait on
         )
         assert self._proc.stdin is not None
         self._proc.stdin.write(json.dumps(job).encode())

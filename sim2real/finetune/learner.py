@@ -113,6 +113,11 @@ def _detach_from_loop(nice: int, parent_pid: int) -> None:
         os.nice(nice)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    from threadpoolctl import threadpool_limits
+
+    # numpy's BLAS at one thread, as torch (set_num_threads(1)): an idle OpenBLAS worker spins
+    # on sched_yield, a share of the core the loop's children need
+    threadpool_limits(limits=1, user_api="blas")
     if sys.platform.startswith("linux"):
         import ctypes
 

@@ -314,7 +314,7 @@ class _Run:
         self, env: Any, learner: Any, actor: Any, normalizer: Any, human: Any, recorder: Any
     ) -> None:
         from sim2real.deploy.loop import LoopLog
-        from sim2real.deploy.realtime import control_thread_priority
+        from sim2real.deploy.realtime import QuietGC, control_thread_priority, single_threaded_blas
 
         fo, st = self.fo, self.state
         budget_s = fo.minutes * 60.0
@@ -331,8 +331,13 @@ class _Run:
         eval_left = 0
         reader = getattr(getattr(env.arm, "link", None), "_thread", None)
         helpers = [reader] if isinstance(reader, threading.Thread) else []
-        with control_thread_priority(fo.deploy.realtime, helpers=helpers):
+        with (
+            control_thread_priority(fo.deploy.realtime, helpers=helpers),
+            QuietGC() as quiet,
+            single_threaded_blas(),  # the actor's products: no BLAS worker to wait for
+        ):
             while True:
+                quiet.between()  # the collector runs here, between episodes, not in a period
                 used_s = float(st["arm_s"]) - self.start_arm_s
                 run_eps = int(st["episodes"]) - self.start_episodes
                 over = used_s >= budget_s or (
