@@ -8,6 +8,7 @@ timing targets live in bench/deploy_mock.py). No assertion here depends on a rat
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,29 @@ def test_sim_backend_reaches_targets_and_logs_every_period(
     assert np.all(steps <= spec.safety.max_step_rad + 1e-9)
     assert set(result.summary()["sections_ms"]) == {"read", "perceive", "infer", "command"}
     assert result.summary()["task"] == "reach"
+
+
+def test_periods_run_without_the_cyclic_collector_or_a_blas_worker(
+    spec: ArmSpec, reach_io: PolicyIO
+) -> None:
+    """What the policy sees inside the loop's periods: no automatic garbage collection (a full one
+    is 100+ ms) and numpy's BLAS at one thread; both given back after the run."""
+    from threadpoolctl import threadpool_info
+
+    inner = ik_policy(spec, reach_io.builder, reach_io.decoder)
+    seen: list[tuple[bool, list[int]]] = []
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        if len(seen) < 3:
+            blas = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+            seen.append((gc.isenabled(), blas))
+        return inner(obs)
+
+    assert gc.isenabled()
+    run_policy(policy, reach_io, spec, DeployOptions(backend="sim"), LoopConfig(episodes=1))
+    assert len(seen) == 3
+    assert all(enabled is False and set(blas) == {1} for enabled, blas in seen), seen
+    assert gc.isenabled() and gc.get_freeze_count() == 0
 
 
 def test_every_command_passes_the_safety_filter_exactly_once(
