@@ -30,6 +30,7 @@ from sim2real.scene_names import (
     EE_MARKER_TILT_RAD,
     FINGER_JOINTS,
     LEVEL_TENDON,
+    LINK_ROOT_BODY,
     MARKER_CUBE,
     MARKER_FILL,
     MARKER_GEOM,
@@ -261,7 +262,7 @@ def _arm_xml(spec: ArmSpec, markers: bool = False) -> tuple[str, str]:
       <body name="turret" pos="0 0 0.024">
         <joint name="{j_yaw.name}" axis="{_f(*j_yaw.axis_vector)}" range="{_f(j_yaw.lower_rad, j_yaw.upper_rad)}"/>
         <geom name="turret" type="box" size="0.03 0.025 {_f((L.base_height_m - 0.024) / 2)}" pos="0 0 {_f((L.base_height_m - 0.024) / 2)}" rgba="0.2 0.2 0.22 1" contype="0" conaffinity="0" mass="0.06"/>
-        <body name="upper_arm" pos="0 0 {_f(L.base_height_m - 0.024)}">
+        <body name="{LINK_ROOT_BODY}" pos="0 0 {_f(L.base_height_m - 0.024)}">
           <joint name="{j_sh.name}" axis="{_f(*j_sh.axis_vector)}" range="{_f(j_sh.lower_rad, j_sh.upper_rad)}"/>
           <geom name="upper_arm" type="capsule" fromto="0 0 0 0 0 {_f(L.upper_arm_m)}" size="0.012" class="arm" mass="0.055"/>
           <body name="forearm" pos="0 0 {_f(L.upper_arm_m)}">

@@ -25,6 +25,7 @@ WRIST_JOINT = "wrist_level"
 FINGER_JOINTS = ("finger_left", "finger_right")
 FINGER_GEOMS = ("finger_left", "finger_right")
 TABLE_GEOM = "table"
+LINK_ROOT_BODY = "upper_arm"  # the first link the shoulder moves: it and below can hit the table
 LEVEL_TENDON = "gripper_level"
 MARKER_GEOM = "target_marker"
 TARGET_PLATE_GEOM = "target_plate"

@@ -426,12 +426,20 @@ class DeployLoop:
                 "limit_clamped": stats.limit_clamped,
                 "step_clamped": stats.step_clamped,
                 **{k: v for k, v in vars(stats).items() if k.startswith("workspace")},
+                **self.world_contacts(),
             },
             watchdog_trips=self._watchdog_trips,
             rate_hz=cfg.rate_hz,
             requested_episodes=cfg.episodes,
             wake_late_s=wake_late,
         )
+
+    def world_contacts(self) -> dict[str, int]:
+        """``{"table_contacts": n}`` where the world measures it (the mock arm's MuJoCo: physics
+        steps with an arm link on the table), else nothing."""
+        count = getattr(self.world, "table_contacts", None)
+        n = count() if callable(count) else None
+        return {} if n is None else {"table_contacts": int(n)}
 
     # ---- episode start ----------------------------------------------------------------------
     PLACEMENT_TRIES = 3  # a world that places objects may put one where the cameras miss it

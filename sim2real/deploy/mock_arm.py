@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 # truth block (float64): [lock, t_s, grasped (-1: no cube), physics steps, tool xyz], then per
 # object of TRUTH_KEYS [present, x, y, z]
 TRUTH_KEYS = ("target", "cube", "seam_start", "seam_end")
-_TRUTH_HEADER = 7
+_TRUTH_HEADER = 8  # seq, t, grasped, steps, tool xyz, table contacts
 _TRUTH_SIZE = _TRUTH_HEADER + 4 * len(TRUTH_KEYS)
 
 
@@ -78,13 +78,16 @@ class MockArmJob:
     realtime_priority: int | None = None
 
 
-def _write_truth(block: np.ndarray, t_s: float, truth: Any, steps: int) -> None:
+def _write_truth(
+    block: np.ndarray, t_s: float, truth: Any, steps: int, table_contacts: int = 0
+) -> None:
     tool, objects, grasped = truth
     block[0] += 1  # odd: writing
     block[1] = t_s
     block[2] = -1.0 if grasped is None else float(bool(grasped))
     block[3] = steps
     block[4:7] = tool
+    block[7] = table_contacts
     for i, key in enumerate(TRUTH_KEYS):
         o = _TRUTH_HEADER + 4 * i
         pos = objects.get(key)
@@ -300,6 +303,14 @@ class MockArmProcess(PtyDevice):
         assert self._truth is not None
         return int(self._truth[3])
 
+    def table_contacts(self) -> int | None:
+        """Physics steps so far with an arm link touching the table (``MockPhysics``); after
+        ``stop``, the count at the end (None if the child died without saying)."""
+        if self._truth is not None:
+            return int(self._truth[7])
+        final = self._final.get("table_contacts")
+        return None if final is None else int(final)
+
 
 # ---- the child ----------------------------------------------------------------------------------
 def _make_emulator(job: MockArmJob) -> Any:
@@ -335,7 +346,7 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -
         scene = SceneStatePublisher(job.state_block, physics.model.nq, physics.model.nmocap)
 
     def sink(t_s: float, data: Any, now_truth: Any) -> None:
-        _write_truth(truth, t_s, now_truth, physics.steps)
+        _write_truth(truth, t_s, now_truth, physics.steps, physics.table_contacts)
         if scene is not None:
             scene.publish(t_s, data.qpos, data.mocap_pos, data.mocap_quat)
 
@@ -358,7 +369,8 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -
             except (EOFError, OSError):
                 break  # the host is gone: so is the arm
             if op == "stop":  # its last words: the device's log, for tests after the run
-                conn.send(("ok", {"applied": emulator.applied()}))
+                final = {"applied": emulator.applied(), "table_contacts": physics.table_contacts}
+                conn.send(("ok", final))
                 break
             try:
                 if op not in ops:

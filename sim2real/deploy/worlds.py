@@ -185,6 +185,14 @@ Truth = tuple[np.ndarray, dict[str, np.ndarray], bool | None]  # tool, objects, 
 StateSink = Callable[[float, mujoco.MjData, Truth], None]
 
 
+def _geoms_below(model: mujoco.MjModel, root: int) -> np.ndarray:
+    """A mask over the model's geoms: those on body ``root`` or any body below it."""
+    below = np.zeros(model.nbody, dtype=bool)
+    for b in range(model.nbody):  # parents come before children in MuJoCo's body order
+        below[b] = b == root or (b > 0 and below[model.body_parentid[b]])
+    return below[model.geom_bodyid]
+
+
 class MockPhysics:
     """The mock arm's world: emulator-driven MuJoCo physics in a real-time thread. It runs in
     the mock arm's own process (``mock_arm``), beside the emulator, never in the host's: after
@@ -220,6 +228,11 @@ class MockPhysics:
         self.lock = threading.Lock()
         self.sink = sink
         self.on_error = on_error
+        # physics steps with a moving link (upper arm and below) touching the table: what the
+        # workspace guard exists to keep at 0, measured by MuJoCo's own contacts
+        self.table_contacts = 0
+        self._table_geom = self.model.geom(names.TABLE_GEOM).id
+        self._link_geom = _geoms_below(self.model, self.model.body(names.LINK_ROOT_BODY).id)
         self._n = spec.n_joints
         self._running = False
         self._thread: threading.Thread | None = None
@@ -279,6 +292,7 @@ class MockPhysics:
                         for k in range(1, behind + 1):  # the setpoint's motion over the steps
                             self._drive(prev + step * k)
                             mujoco.mj_step(self.model, self.data)
+                            self.table_contacts += self._touches_table()
                         self.steps += behind
                     self._sense()
                     prev = setpoint
@@ -292,6 +306,16 @@ class MockPhysics:
             log.error("mock physics stopped: %s", exc)
             if self.on_error is not None:
                 self.on_error(exc)
+
+    def _touches_table(self) -> int:
+        """1 if any contact pairs the table with a moving link, else 0."""
+        n = self.data.ncon
+        if n == 0:
+            return 0
+        pairs = self.data.contact.geom[:n]
+        on_table = pairs == self._table_geom
+        link = self._link_geom[pairs]
+        return int(np.any((on_table[:, 0] & link[:, 1]) | (on_table[:, 1] & link[:, 0])))
 
     def truth(self) -> Truth:
         """Tool, objects and grasp from the current state (caller holds the lock)."""
@@ -402,6 +426,10 @@ class MockWorld:
             grasped=grasped,
             commanded_rad=commanded_rad,
         )
+
+    def table_contacts(self) -> int | None:
+        """Physics steps with an arm link on the table so far (``MockPhysics``)."""
+        return self.process.table_contacts()
 
     def close(self) -> None:
         """The backend's exit stack stops the arm's process and the cameras."""

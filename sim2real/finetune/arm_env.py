@@ -516,7 +516,8 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     @property
     def safety_stats(self) -> dict[str, int]:
-        return dict(vars(self.arm.safety.stats))
+        """The safety filter's counters, and the mock world's arm-table contacts."""
+        return {**vars(self.arm.safety.stats), **self.loop.world_contacts()}
 
     def timing(self) -> dict[str, float]:
         """Loop timing so far: rate, p99 period jitter against nominal, late periods."""

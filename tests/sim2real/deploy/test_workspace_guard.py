@@ -83,3 +83,36 @@ def test_a_diving_policy_never_touches_the_table(scene: str) -> None:
     )
     contacts, clamped = _dive(lowered, scene)
     assert contacts > 100 and clamped == 0
+
+
+@pytest.mark.parametrize("guard", ["shipped", "lowered"])
+def test_a_diving_policy_on_the_mock_arm_never_touches_the_table(guard: str) -> None:
+    """The whole mock chain (serial bytes, emulator, the mock world's MuJoCo): the policy steers
+    its joint targets into the table. With the shipped guard the world sees no arm-table contact;
+    with the guard's table 10 cm lower the same policy hits the table, so the count is real."""
+    from sim2real.deploy.loop import LoopConfig
+    from sim2real.deploy.policy_io import io_for
+    from sim2real.deploy.runner import DeployOptions, run_policy
+
+    spec = SPEC if guard == "shipped" else replace(
+        SPEC, workspace=replace(SPEC.workspace, table_z_m=-0.1, box_min_m=(-0.08, -0.3, -0.1))
+    )  # fmt: skip
+    io = io_for(spec, "Sim2Real/Arm3Reach-v0")
+    sl = {f.name: slice(f.start, f.stop) for f in io.builder.layout()}
+    dive = np.array([0.0, 1.3, 0.27])
+    calls = [0]
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        calls[0] += 1
+        goal = dive + (0.0 if calls[0] % 2 else 0.3, 0.0, 0.0)
+        return np.clip((goal - obs[sl["joint_pos"]]) / io.decoder.max_delta_rad, -1.0, 1.0)
+
+    result = run_policy(
+        policy, io, spec, DeployOptions(backend="mock", watchdog_s=2.0),
+        LoopConfig(episodes=1, start_timeout_s=60),
+    )  # fmt: skip
+    stats = result.safety_stats
+    if guard == "shipped":
+        assert stats["table_contacts"] == 0 and stats["workspace_clamped"] > 10, stats
+    else:
+        assert stats["table_contacts"] > 10 and stats["workspace_clamped"] == 0, stats

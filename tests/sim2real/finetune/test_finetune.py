@@ -89,6 +89,7 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
     assert np.all(sent[:, :n] >= lower - 1e-9) and np.all(sent[:, :n] <= upper + 1e-9)
     assert np.all(np.isfinite(sent))
     assert first["safety"]["nonfinite"] == 0
+    assert first["safety"]["table_contacts"] == 0  # the mock world's MuJoCo saw no arm on the table
     assert first["safety"]["commands"] >= steps
 
     # the learner trained on what the env saw: each transition is this period's observation
