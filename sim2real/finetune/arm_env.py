@@ -254,6 +254,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.overruns = 0
         self.blind_periods = 0
         self.estops: list[str] = []  # e-stops (watchdog, faults) that a reset recovered from
+        self.end_state: dict[str, Any] = {}  # where close() left the arm (``_end_state``)
         self._idle_stop = threading.Event()
         self._idle: threading.Thread | None = None
 
@@ -387,6 +388,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         try:
             if self.arm.is_connected and self.arm.is_enabled:
                 self.loop._park()
+            self.end_state = self._end_state()
         finally:
             self._contract = None
             sight = getattr(self.loop, "_sight", None)  # the loop's placement checker, if any
@@ -513,6 +515,21 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
     def _require_open(self) -> None:
         if self._closed:
             raise ConfigError("ArmEnv is closed: make a new one")
+
+    def _end_state(self) -> dict[str, Any]:
+        """Where the arm ended, read back before the port closes: torque, joints, and how far
+        from the park pose (a parked arm sags by its droop; an e-stopped one stays held)."""
+        out: dict[str, Any] = {"torque_on": bool(self.arm.is_enabled)}
+        try:
+            spec = self.arm.spec
+            q = np.asarray(self.arm.read_state().positions_rad[: spec.n_joints], float)
+        except Exception as exc:  # the port is gone: torque off was the firmware's to do
+            out["read_error"] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            return out
+        park = np.array([j.park_rad for j in spec.joints])
+        out["joints_rad"] = [round(float(v), 4) for v in q]
+        out["park_error_rad"] = round(float(np.max(np.abs(q - park))), 4)
+        return out
 
     @property
     def safety_stats(self) -> dict[str, int]:

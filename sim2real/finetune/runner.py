@@ -261,6 +261,7 @@ class _Run:
                 )  # fmt: skip
                 self.watchdog_trips += int("watchdog" in str(exc))
                 env.close()  # the arm first: parked (or held, torque off, after an e-stop)
+                self.state["stops"][-1]["arm_end"] = env.end_state
                 self._interventions(human)
                 if not isinstance(exc, _learner_errors()):
                     try:
@@ -535,6 +536,7 @@ class _Run:
                 "recovered_estops": list(env.estops),
             },
             "safety": env.safety_stats,
+            "arm_end": env.end_state,
             "interventions": len(self.state["interventions"]),
             "checkpoint": self.state["checkpoint"],
             "stopped": self.stop_reason,
