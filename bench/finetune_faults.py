@@ -25,13 +25,16 @@ say whether the guard held it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
+import queue
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -51,29 +54,27 @@ def _default_signals() -> None:
         signal.signal(sig, signal.SIG_DFL)
 
 
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
-def _descendants(pid: int) -> set[int]:
-    parents: dict[int, int] = {}
+def _group(pgid: int) -> set[int]:
+    """Live processes of a process group (the run started its own session: the learner, the
+    mock arm, render and perception processes are all in it), read from /proc."""
+    found = set()
     for entry in os.listdir("/proc"):
         if entry.isdigit():
             try:
                 with open(f"/proc/{entry}/stat") as f:
-                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
+                    state, _ppid, pgrp = f.read().rsplit(")", 1)[1].split()[:3]
+            except (OSError, ValueError):
                 continue
-    found, frontier = set(), {pid}
-    while frontier:
-        children = {c for c, p in parents.items() if p in frontier} - found
-        found |= children
-        frontier = children
+            if int(pgrp) == pgid and state != "Z":
+                found.add(int(entry))
     return found
+
+
+def _kill_group(proc: subprocess.Popen[str]) -> None:
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGKILL)
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        proc.wait(timeout=10)
 
 
 def _command(args: argparse.Namespace, out: Path, *extra: str) -> list[str]:
@@ -85,109 +86,150 @@ def _command(args: argparse.Namespace, out: Path, *extra: str) -> list[str]:
     ]  # fmt: skip
 
 
+def _lines(stream: Any) -> queue.Queue[str | None]:
+    """stdout's lines on a thread (None at its end), so that a silent run cannot hang the
+    bench: the caller waits on the queue with a deadline."""
+    lines: queue.Queue[str | None] = queue.Queue()
+
+    def pump() -> None:
+        for line in stream:
+            lines.put(line)
+        lines.put(None)
+
+    threading.Thread(target=pump, daemon=True).start()
+    return lines
+
+
 def _strike(fault: str, proc: subprocess.Popen[str], master: int | None) -> None:
+    def estop_key() -> None:
+        if master is not None:
+            os.write(master, b"e")
+
     strikes: dict[str, Callable[[], None]] = {
-        "sigint": lambda: proc.send_signal(signal.SIGINT),
-        "sigterm": lambda: proc.send_signal(signal.SIGTERM),
+        # a terminal's Ctrl-C reaches the whole foreground group; its children ignore it
+        "sigint": lambda: os.killpg(proc.pid, signal.SIGINT),
+        "sigterm": lambda: proc.send_signal(signal.SIGTERM),  # a scheduler stops the main pid
         "sigkill": proc.kill,
-        "estop": lambda: os.write(master, b"e") if master is not None else None,
+        "estop": estop_key,
     }
     strikes[fault]()
 
 
+def _last_line(text: str) -> str:
+    lines = text.strip().splitlines()
+    return lines[-1][:200] if lines else ""
+
+
 def run_fault(fault: str, args: argparse.Namespace, work: Path) -> dict[str, Any]:
     out = work / fault
+    out.parent.mkdir(parents=True, exist_ok=True)
     keys = ("--keys",) if fault == "estop" else ("--no-keys",)
     extra: tuple[str, ...] = ()
     if fault == "diverge":
         extra = ("--learning-rate", "0.5", "--utd", "1", "--actor-starts", "0",
                  "--noise-std", "1.0", "--max-episodes", str(args.diverge_episodes))  # fmt: skip
     cmd = _command(args, out, *keys, *extra)
-    master = slave = None
-    if fault == "estop":  # the keys come from a terminal: a real pty
-        master, slave = os.openpty()
-    proc = subprocess.Popen(
-        cmd, cwd=ROOT, stdin=slave if slave is not None else subprocess.DEVNULL,
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_signals,
-    )  # fmt: skip
-    if slave is not None:
-        os.close(slave)
-    reported, learner_pid, started = 0, None, set()
-    struck_at = None
+    row: dict[str, Any] = {"fault": fault}
+    reported, struck_at, outlived = 0, None, set()
     summary: dict[str, Any] | None = None
-    t0 = time.monotonic()
+    master = slave = None
+    proc = None
+    err_path = work / f"{fault}.stderr"
     try:
+        if fault == "estop":  # the keys come from a terminal: a real pty
+            master, slave = os.openpty()
+        with open(err_path, "w") as err:
+            proc = subprocess.Popen(
+                cmd, cwd=ROOT, stdin=slave if slave is not None else subprocess.DEVNULL,
+                stdout=subprocess.PIPE, stderr=err, text=True, preexec_fn=_default_signals,
+                start_new_session=True,
+            )  # fmt: skip
+        if slave is not None:
+            os.close(slave)
+            slave = None
         assert proc.stdout is not None
-        for line in proc.stdout:
+        lines = _lines(proc.stdout)
+        deadline = time.monotonic() + HANG_S
+        while True:
+            try:
+                line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
+            except queue.Empty:
+                row["error"] = f"no output for {HANG_S:g} s"
+                break
+            if line is None:
+                break
             event = json.loads(line)
-            if event["event"] == "learner_ready":
-                learner_pid = event["learner_pid"]
-            elif event["event"] == "episode":
+            if event["event"] == "episode":
                 reported += 1
                 if fault != "diverge" and reported == args.episodes_before:
                     time.sleep(args.strike_after_s)  # into the next episode
-                    started = _descendants(proc.pid)
                     struck_at = time.monotonic()
                     _strike(fault, proc, master)
                     if fault == "sigkill":
                         break
             elif event["event"] == "summary":
                 summary = event
-            if time.monotonic() - t0 > HANG_S:
-                proc.kill()
-                break
-        proc.wait(timeout=HANG_S)
-        exit_s = None if struck_at is None else time.monotonic() - struck_at
-        err = proc.stderr.read() if proc.stderr is not None else ""
+        try:
+            proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            row["error"] = "the run did not exit"
+        if struck_at is not None and proc.returncode is not None:
+            row["exit_after_fault_s"] = round(time.monotonic() - struck_at, 2)
+        # what outlives the host: SIGKILL leaves the learner to its parent-death signal and the
+        # mock arm's process to its closed control channel
+        gone_by = time.monotonic() + 30.0
+        while _group(proc.pid) and time.monotonic() < gone_by:
+            time.sleep(0.1)
+        outlived = _group(proc.pid)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        if master is not None:
-            os.close(master)
-    # what outlived the host (SIGKILL: the learner by its parent-death signal, the mock arm's
-    # process when its control channel closes); waited for, then killed if still there
-    deadline = time.monotonic() + 30.0
-    while any(_alive(p) for p in started) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    outlived = sorted(p for p in started if _alive(p))
-    for pid in outlived:
-        os.kill(pid, signal.SIGKILL)
+        if proc is not None:
+            _kill_group(proc)
+        for fd in (master, slave):
+            if fd is not None:
+                os.close(fd)
+    row["returncode"] = proc.returncode if proc is not None else None
+    row["stderr_tail"] = _last_line(err_path.read_text()) if err_path.exists() else ""
     state = json.loads((out / "finetune.json").read_text())
     stop = state["stops"][-1] if state["stops"] else {}
-    row: dict[str, Any] = {
-        "fault": fault,
-        "returncode": proc.returncode,
-        "exit_after_fault_s": None if exit_s is None else round(exit_s, 2),
-        "stop_reason": stop.get("reason") or (summary or {}).get("stopped"),
-        "arm_end": stop.get("arm_end") or (summary or {}).get("arm_end"),
-        "episodes_reported": reported,
-        "episodes_checkpointed": state["episodes"],
-        "finished_episodes_lost": reported - state["episodes"],
-        "env_steps_checkpointed": state["env_steps"],
-        "processes_outliving_host": len(outlived),
-        "learner_outlived": learner_pid is not None and learner_pid in outlived,
-        "stderr_tail": err.strip().splitlines()[-1][:200] if err.strip() else "",
-    }
+    row.update(
+        stop_reason=stop.get("reason") or (summary or {}).get("stopped"),
+        arm_end=stop.get("arm_end") or (summary or {}).get("arm_end"),
+        episodes_reported=reported,
+        episodes_checkpointed=state["episodes"],
+        finished_episodes_lost=reported - state["episodes"],
+        env_steps_checkpointed=state["env_steps"],
+        processes_outliving_host=len(outlived),
+    )
     if summary is not None:
         row["safety"] = summary.get("safety")
     if fault != "diverge":
-        resumed = subprocess.run(
-            [*cmd, "--resume", "--max-episodes", "1"], cwd=ROOT, capture_output=True, text=True,
-            timeout=HANG_S, preexec_fn=_default_signals,
-            stdin=subprocess.DEVNULL,
-        )  # fmt: skip
-        row["resume_returncode"] = resumed.returncode
-        if resumed.returncode == 0:
-            after = json.loads(resumed.stdout.strip().splitlines()[-1])
-            row["resume_episodes"] = after["episodes"]
-            row["resume_continues"] = (
-                after["episodes"] == state["episodes"] + 1
-                and after["env_steps"] > state["env_steps"]
-            )
-        else:
-            row["resume_error"] = resumed.stderr.strip().splitlines()[-1][:200]
+        row.update(_resume(cmd, state))
     return row
+
+
+def _resume(cmd: list[str], state: dict[str, Any]) -> dict[str, Any]:
+    """``--resume --max-episodes 1``: one more episode from the checkpoint."""
+    proc = subprocess.Popen(
+        [*cmd, "--resume", "--max-episodes", "1"], cwd=ROOT, stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=_default_signals, start_new_session=True,
+    )  # fmt: skip
+    try:
+        stdout, stderr = proc.communicate(timeout=HANG_S)
+    except subprocess.TimeoutExpired:
+        return {"resume_error": f"no exit in {HANG_S:g} s"}
+    finally:
+        _kill_group(proc)
+    out: dict[str, Any] = {"resume_returncode": proc.returncode}
+    if proc.returncode != 0 or not stdout.strip():
+        out["resume_error"] = _last_line(stderr)
+        return out
+    after = json.loads(stdout.strip().splitlines()[-1])
+    out["resume_episodes"] = after["episodes"]
+    out["resume_continues"] = (
+        after["episodes"] == state["episodes"] + 1 and after["env_steps"] > state["env_steps"]
+    )
+    return out
 
 
 def main() -> None:
@@ -208,7 +250,10 @@ def main() -> None:
               "cpus": os.cpu_count()}  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="finetune-faults-") as tmp:
         for fault in args.faults:
-            row = run_fault(fault, args, Path(tmp))
+            try:
+                row = run_fault(fault, args, Path(tmp))
+            except Exception as exc:  # one fault's failure is its row, not the end of the bench
+                row = {"fault": fault, "returncode": None, "error": f"{type(exc).__name__}: {exc}"}
             emit("finetune_fault", row["returncode"], "exit status", **row, **common)
 
 

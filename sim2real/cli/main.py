@@ -21,7 +21,7 @@ from sim2real.cli.signals import Received, exit_code_for, interrupts_as_keyboard
 
 # Which install extra (pyproject.toml) provides a third-party module a command may import.
 EXTRA_OF_MODULE: dict[str, str] = {
-    **dict.fromkeys(("cv2", "filterpy", "onnxruntime", "imageio"), "deploy"),
+    **dict.fromkeys(("cv2", "filterpy", "onnxruntime", "imageio", "threadpoolctl"), "deploy"),
     **dict.fromkeys(("mujoco", "gymnasium", "scipy", "numba", "imageio_ffmpeg", "tqdm"), "sim"),
     **dict.fromkeys(
         ("torch", "stable_baselines3", "onnx", "tensorboard", "matplotlib", "rich", "pyarrow"),

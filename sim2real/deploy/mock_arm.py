@@ -47,10 +47,10 @@ from sim2real.model import RigSpec
 
 log = logging.getLogger(__name__)
 
-# truth block (float64): [lock, t_s, grasped (-1: no cube), physics steps, tool xyz], then per
-# object of TRUTH_KEYS [present, x, y, z]
+# truth block (float64): [lock, t_s, grasped (-1: no cube), physics steps, tool xyz, arm-table
+# contact steps], then per object of TRUTH_KEYS [present, x, y, z]
 TRUTH_KEYS = ("target", "cube", "seam_start", "seam_end")
-_TRUTH_HEADER = 8  # seq, t, grasped, steps, tool xyz, table contacts
+_TRUTH_HEADER = 8
 _TRUTH_SIZE = _TRUTH_HEADER + 4 * len(TRUTH_KEYS)
 
 
@@ -79,7 +79,7 @@ class MockArmJob:
 
 
 def _write_truth(
-    block: np.ndarray, t_s: float, truth: Any, steps: int, table_contacts: int = 0
+    block: np.ndarray, t_s: float, truth: Any, steps: int, table_contacts: int
 ) -> None:
     tool, objects, grasped = truth
     block[0] += 1  # odd: writing

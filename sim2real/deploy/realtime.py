@@ -1,4 +1,6 @@
-"""Real-time scheduling for the control loop's thread, where the OS allows it.
+"""Real-time scheduling for the control loop's thread, where the OS allows it, and what else
+the loop must not wait for: the cyclic garbage collector (``QuietGC``) and a BLAS worker thread
+(``single_threaded_blas``).
 
 A control loop that wakes late jitters, whatever its own code costs. On Linux a thread under
 ``SCHED_FIFO`` runs as soon as it wakes, ahead of every normal process (a training run on the
@@ -16,6 +18,8 @@ import logging
 import os
 import threading
 from collections.abc import Iterator, Sequence
+
+from threadpoolctl import threadpool_limits
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +45,6 @@ def single_threaded_blas() -> Iterator[None]:
     periods that no scheduler setting of the loop's thread reaches. Between products the idle
     worker spins on ``sched_yield`` (a third of a core on this 2-core machine). The loop's
     products are far too small to gain from a second thread."""
-    from threadpoolctl import threadpool_limits
-
     with threadpool_limits(limits=1, user_api="blas"):
         yield
 
@@ -103,28 +105,37 @@ class QuietGC:
     (nearly all of a period's) goes as usual; a cycle among frozen objects waits until the block
     ends. Nested blocks defer to the outermost."""
 
-    _depth = 0
+    _depth = 0  # per process; the loop's own thread enters and leaves it
 
     def __enter__(self) -> QuietGC:
         cls = type(self)
-        cls._depth += 1
-        self._outer = cls._depth == 1
+        self._outer = cls._depth == 0
         if self._outer:
             self._was_enabled = gc.isenabled()
             gc.disable()
-            gc.collect()
-            gc.freeze()
+            try:
+                gc.collect()
+                gc.freeze()
+            except BaseException:  # a Ctrl-C in the collection: nothing stays switched off
+                self._restore()
+                raise
+        cls._depth += 1
         return self
 
     def between(self) -> None:
         """Collect what was allocated since the last call, outside any period."""
+        if type(self)._depth == 0:
+            raise RuntimeError("QuietGC.between() outside its block")
         gc.collect()
         gc.freeze()
 
     def __exit__(self, *exc: object) -> None:
-        cls = type(self)
-        cls._depth -= 1
+        type(self)._depth -= 1
         if self._outer:
-            gc.unfreeze()
-            if self._was_enabled:
-                gc.enable()
+            self._restore()
+
+    def _restore(self) -> None:
+        """Unfreeze (a freeze made before the block is undone too) and re-enable."""
+        gc.unfreeze()
+        if self._was_enabled:
+            gc.enable()

@@ -517,18 +517,21 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ConfigError("ArmEnv is closed: make a new one")
 
     def _end_state(self) -> dict[str, Any]:
-        """Where the arm ended, read back before the port closes: torque, joints, and how far
-        from the park pose (a parked arm sags by its droop; an e-stopped one stays held)."""
+        """Where the arm ended: the host's torque flag, and the joints read back before the port
+        closes with their distance from the park pose (a parked arm sags by its droop; after an
+        e-stop the arm held where it was, then went torque off)."""
         out: dict[str, Any] = {"torque_on": bool(self.arm.is_enabled)}
+        if not self.arm.is_connected:
+            out["read_error"] = "not connected"
+            return out
+        spec = self.arm.spec
         try:
-            spec = self.arm.spec
             q = np.asarray(self.arm.read_state().positions_rad[: spec.n_joints], float)
         except Exception as exc:  # the port is gone: torque off was the firmware's to do
             out["read_error"] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             return out
-        park = np.array([j.park_rad for j in spec.joints])
         out["joints_rad"] = [round(float(v), 4) for v in q]
-        out["park_error_rad"] = round(float(np.max(np.abs(q - park))), 4)
+        out["park_error_rad"] = round(float(np.max(np.abs(q - spec.park_rad))), 4)
         return out
 
     @property

@@ -106,18 +106,20 @@ class RewardShaper:
 
 # ---- the learner's side ------------------------------------------------------------------------
 def _detach_from_loop(nice: int, parent_pid: int) -> None:
-    """Lower priority than the loop, normal scheduling, no terminal signals, die with it."""
+    """Lower priority than the loop, normal scheduling, no terminal signals, one BLAS thread,
+    die with it."""
     with contextlib.suppress(OSError, AttributeError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # never inherit FIFO
     with contextlib.suppress(OSError):
         os.nice(nice)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    from threadpoolctl import threadpool_limits
+    # numpy's BLAS at one thread, as torch's (set_num_threads(1)): an idle OpenBLAS worker spins
+    # on sched_yield, a share of the core the loop's children need (a learner without it works)
+    with contextlib.suppress(Exception):
+        from threadpoolctl import threadpool_limits
 
-    # numpy's BLAS at one thread, as torch (set_num_threads(1)): an idle OpenBLAS worker spins
-    # on sched_yield, a share of the core the loop's children need
-    threadpool_limits(limits=1, user_api="blas")
+        threadpool_limits(limits=1, user_api="blas")
     if sys.platform.startswith("linux"):
         import ctypes
 

@@ -90,6 +90,8 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
     assert np.all(np.isfinite(sent))
     assert first["safety"]["nonfinite"] == 0
     assert first["safety"]["table_contacts"] == 0  # the mock world's MuJoCo saw no arm on the table
+    # parked, torque off, read back before the port closed
+    assert first["arm_end"]["torque_on"] is False and first["arm_end"]["park_error_rad"] < 0.05
     assert first["safety"]["commands"] >= steps
 
     # the learner trained on what the env saw: each transition is this period's observation
@@ -178,6 +180,8 @@ def test_sigterm_mid_finetune_exits_143_checkpoints_and_resumes(tmp_path: Path) 
             pytest.fail("the learner process outlived its parent")
     state = json.loads((out / "finetune.json").read_text())
     assert state["episodes"] >= 1 and state["stops"][-1]["reason"] == "SIGTERM"
+    arm_end = state["stops"][-1]["arm_end"]  # parked mid-episode, then torque off
+    assert arm_end["torque_on"] is False and arm_end["park_error_rad"] < 0.05, arm_end
     assert (out / "checkpoints" / state["checkpoint"]).is_file()
     steps = state["env_steps"]
     resumed = subprocess.run(
