@@ -208,7 +208,9 @@ def run_fault(fault: str, args: argparse.Namespace, work: Path) -> dict[str, Any
 
 
 def _resume(cmd: list[str], state: dict[str, Any]) -> dict[str, Any]:
-    """``--resume --max-episodes 1``: one more episode from the checkpoint."""
+    """``--resume --max-episodes 1``: one more episode from the checkpoint (no terminal here:
+    without the keys)."""
+    cmd = ["--no-keys" if arg == "--keys" else arg for arg in cmd]
     proc = subprocess.Popen(
         [*cmd, "--resume", "--max-episodes", "1"], cwd=ROOT, stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
