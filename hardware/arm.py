@@ -125,6 +125,7 @@ class ArmBase(ABC):
         self._connected = False
         self._enabled = False
         self._estop_reason: str | None = None
+        self._estop_by_operator = False  # a person's e-stop: only enable() clears it
         self._last_sent: np.ndarray | None = None
         timeout = (
             spec.safety.watchdog_timeout_s if host_watchdog_s == _SPEC_DEFAULT else host_watchdog_s
@@ -268,6 +269,7 @@ class ArmBase(ABC):
             self._last_sent = self._reference(self._read_state())
             self._enabled = True
             self._estop_reason = None
+            self._estop_by_operator = False
             if self._watchdog is not None:
                 self._watchdog.arm()
 
@@ -302,6 +304,10 @@ class ArmBase(ABC):
         outside = self.spec.workspace_violation(target[: self.spec.n_joints])
         if outside:  # the guard would hold it short: say so now, not after the timeout
             raise SafetyError(f"cannot move to {np.round(target, 3).tolist()} rad: {outside}")
+        if self._estop_reason is not None and self._estop_by_operator:
+            raise SafetyError(
+                f"e-stop latched ({self._estop_reason}); a person must call enable() to resume"
+            )
         if not self._enabled or self._estop_reason is not None:
             self.enable()
         tol = arrival_tolerance_rad(self.spec) if tolerance_rad is None else float(tolerance_rad)
@@ -373,13 +379,16 @@ class ArmBase(ABC):
         return self.move_to(self.spec.actuator_park_rad)
 
     # ---- e-stop ---------------------------------------------------------------------------
-    def estop(self, reason: str = "e-stop") -> None:
+    def estop(self, reason: str = "e-stop", *, operator: bool = False) -> None:
         """Hold the last targets for ``safety.hold_before_disable_s``, then torque off. Latches:
-        command() refuses until enable()."""
+        command() refuses until enable(). ``operator``: a person pressed it (a key, a button),
+        so ``move_to``/``home`` refuse too instead of re-enabling, as they do after a watchdog
+        or a fault: only an explicit ``enable()`` moves the arm again."""
         with self._lock:
             if not self._connected:
                 return
             self._estop_reason = reason
+            self._estop_by_operator = operator
             if self._watchdog is not None:
                 self._watchdog.disarm()
             log.warning("e-stop: %s: holding, then torque off", reason)

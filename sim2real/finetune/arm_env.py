@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import math
 import threading
@@ -226,7 +227,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.world: World = world
         self.loop = DeployLoop(arm, perception, world, _no_policy, io, config.loop_config())
         if human is not None and human.on_estop is None:
-            human.on_estop = arm.estop  # the key stops the arm at once, from the key thread
+            # the key stops the arm at once, from the key thread, and nothing but a person's
+            # enable() moves it again (not the next reset's homing)
+            human.on_estop = functools.partial(arm.estop, operator=True)
             self._stack.callback(setattr, human, "on_estop", None)  # not past close()
 
         # Real time and real sensors: the same seed places the same objects, but no two runs
@@ -319,8 +322,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             self._step = 0
             self._period_start = time.perf_counter()
             obs, _ = self._observe()
-        except BaseException:
+        except BaseException as exc:
             self._fail()
+            self._raise_if_estop_key(exc)
             raise
         info: dict[str, Any] = {"episode": self.episodes, "task": self.io.task}
         if recovered is not None:
@@ -352,10 +356,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             obs, d_m = self._observe(state, percept)
         except BaseException as exc:
             self._fail()
-            if isinstance(exc, SafetyError) and self.human is not None and self.human.estopped:
-                raise DeployStopError(
-                    "stopped by the e-stop key; the arm is held, torque off"
-                ) from None
+            self._raise_if_estop_key(exc)
             raise
         reward = float(self._reward_fn(d_m, d_m < self._success_m))
         truncated = self._step >= self.episode_steps or reason is not None
@@ -496,6 +497,14 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         if not self.human.wait_while_paused(self.loop._hold, self.period_s):
             self._check_estop_key()
         self._period_start = time.perf_counter()  # a pause is not a late period
+
+    def _raise_if_estop_key(self, exc: BaseException) -> None:
+        """A command the arm refused because the e-stop key latched it (mid-episode, or while
+        homing for the next one) is the key's clean stop, not an error."""
+        if isinstance(exc, SafetyError) and self.human is not None and self.human.estopped:
+            raise DeployStopError(
+                "stopped by the e-stop key; the arm is held, torque off"
+            ) from None
 
     def _check_estop_key(self) -> None:
         if self.human is not None and self.human.estopped:

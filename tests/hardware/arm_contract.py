@@ -192,6 +192,24 @@ class ArmContract:
             assert probe.torque_enabled()
         assert not probe.torque_enabled()
 
+    def test_an_operator_estop_is_not_cleared_by_homing(
+        self, arm: ArmBase, probe: ArmProbe
+    ) -> None:
+        """After a watchdog or fault e-stop, home() re-enables (a simulated arm recovers for the
+        next episode); after a person's, only an explicit enable() moves the arm again."""
+        with arm:
+            arm.home()
+            arm.estop("a fault")
+            arm.home()
+            assert probe.torque_enabled() and arm.estop_reason is None
+            arm.estop("the e-stop key", operator=True)
+            with pytest.raises(SafetyError, match="e-stop latched"):
+                arm.home()
+            assert not probe.torque_enabled()
+            arm.enable()
+            arm.home()
+            assert probe.torque_enabled()
+
     def test_estop_holds_then_releases_and_latches(self, arm: ArmBase, probe: ArmProbe) -> None:
         with arm:
             arm.enable()

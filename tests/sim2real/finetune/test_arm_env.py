@@ -328,6 +328,30 @@ def test_keys_pause_mark_and_estop_the_env(
     assert [i.action for i in keys.interventions] == ["pause", "resume", "success", "estop"]
 
 
+def test_the_estop_key_while_homing_for_an_episode_is_a_clean_stop(
+    spec: ArmSpec, reach_io: PolicyIO, pty_keys: tuple[int, HumanKeys]
+) -> None:
+    """The key arrives through the pty while reset() homes the arm (pressed from inside the home
+    move, so the timing is fixed): the refused homing command is the key's clean stop."""
+    master, keys = pty_keys
+    env = ArmEnv(reach_io, spec, SIM, human=keys)
+    home = env.loop._home
+
+    def home_with_the_key_pressed() -> None:
+        os.write(master, b"e")
+        _wait(lambda: env.arm.estop_reason is not None, "the e-stop")
+        home()
+
+    try:
+        env.reset(seed=1)
+        env.loop._home = home_with_the_key_pressed  # type: ignore[method-assign]
+        with pytest.raises(DeployStopError, match="e-stop key"):
+            env.reset(seed=2)
+        assert not env.arm.is_enabled
+    finally:
+        env.close()
+
+
 def test_a_reset_waits_for_the_reset_key_holding_the_arm(
     spec: ArmSpec,
     reach_io: PolicyIO,
