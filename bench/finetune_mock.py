@@ -104,9 +104,7 @@ def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, fl
 def main() -> None:
     from hardware.spec import load_spec
     from sim2real.deploy.runner import DeployOptions
-    from sim2real.finetune.checkpoint import resolve
     from sim2real.finetune.defaults import LEARNER_DEFAULTS
-    from sim2real.finetune.relabel import default_ratio
     from sim2real.finetune.runner import FinetuneOptions, finetune
     from sim2real.policies import shipped
 
@@ -142,11 +140,6 @@ def main() -> None:
     common = {
         "policy": args.policy, "plant": args.plant, "algo": args.algo or "source's",
         "mix_sim_buffer": args.mix_sim_buffer, "utd": args.utd, "actor_starts": args.actor_starts,
-        # what the learner used: the defaults where the options were left unset
-        "relabel": args.relabel if args.relabel is not None
-        else default_ratio(resolve(args.policy, args.algo).config),
-        "noise_std": args.noise_std if args.noise_std is not None
-        else float(LEARNER_DEFAULTS["noise_std"]),
         "watchdog_s": args.watchdog_s or spec.safety.watchdog_timeout_s,
         "machine": f"{platform.machine()} {os.cpu_count()} cpu",
         "date": time.strftime("%Y-%m-%d"),
@@ -177,6 +170,8 @@ def main() -> None:
         )  # fmt: skip
         summary = finetune(fo, spec)
         wall_s = time.monotonic() - t0
+        # what the learner used: the defaults where the options were left unset
+        common.update(relabel=summary["relabel"], noise_std=summary["noise_std"])
         curves[seed] = summary["evals"]
         for block in summary["evals"]:
             emit("finetune_eval_success", block["success"], "fraction", seed=seed,

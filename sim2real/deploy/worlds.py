@@ -231,8 +231,11 @@ class MockPhysics:
         # physics steps with a moving link (upper arm and below) touching the table: what the
         # workspace guard exists to keep at 0, measured by MuJoCo's own contacts
         self.table_contacts = 0
-        self._table_geom = self.model.geom(names.TABLE_GEOM).id
-        self._link_geom = _geoms_below(self.model, self.model.body(names.LINK_ROOT_BODY).id)
+        table = self.model.geom(names.TABLE_GEOM).id
+        link = _geoms_below(self.model, self.model.body(names.LINK_ROOT_BODY).id)
+        # [geom1, geom2] -> a link on the table: one lookup per contact in the physics loop
+        self._table_link = np.zeros((self.model.ngeom, self.model.ngeom), dtype=bool)
+        self._table_link[table, link] = self._table_link[link, table] = True
         self._n = spec.n_joints
         self._running = False
         self._thread: threading.Thread | None = None
@@ -309,13 +312,10 @@ class MockPhysics:
 
     def _touches_table(self) -> int:
         """1 if any contact pairs the table with a moving link, else 0."""
-        n = self.data.ncon
-        if n == 0:
+        if self.data.ncon == 0:
             return 0
-        pairs = self.data.contact.geom[:n]
-        on_table = pairs == self._table_geom
-        link = self._link_geom[pairs]
-        return int(np.any((on_table[:, 0] & link[:, 1]) | (on_table[:, 1] & link[:, 0])))
+        pairs = self.data.contact.geom  # (ncon, 2)
+        return int(self._table_link[pairs[:, 0], pairs[:, 1]].any())
 
     def truth(self) -> Truth:
         """Tool, objects and grasp from the current state (caller holds the lock)."""

@@ -64,6 +64,8 @@ from sim2real.finetune.keys import HumanKeys
 
 log = logging.getLogger(__name__)
 
+ESTOP_KEY_STOP = "stopped by the e-stop key; the arm is held, torque off"
+
 # Tasks whose object can be virtual on a real arm: the object name the contract's placement
 # draws. Nothing needs to stand on the table: success is judged from the tool estimate alone.
 VIRTUAL_OBJECTS: dict[str, str] = {"reach": "target"}
@@ -502,13 +504,11 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         """A command the arm refused because the e-stop key latched it (mid-episode, or while
         homing for the next one) is the key's clean stop, not an error."""
         if isinstance(exc, SafetyError) and self.human is not None and self.human.estopped:
-            raise DeployStopError(
-                "stopped by the e-stop key; the arm is held, torque off"
-            ) from None
+            raise DeployStopError(ESTOP_KEY_STOP) from None
 
     def _check_estop_key(self) -> None:
         if self.human is not None and self.human.estopped:
-            raise DeployStopError("stopped by the e-stop key; the arm is held, torque off")
+            raise DeployStopError(ESTOP_KEY_STOP)
 
     def _fail(self) -> None:
         """Any error or interrupt mid-episode: hold, park if the arm still answers, torque off;

@@ -34,6 +34,7 @@ from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
 from sim2real.finetune.checkpoint import ALGOS, FinetuneDir, FinetuneSource, resolve
 from sim2real.finetune.defaults import LEARNER_DEFAULTS
+from sim2real.finetune.relabel import default_ratio
 
 log = logging.getLogger(__name__)
 
@@ -139,6 +140,11 @@ class _Run:
         self.fo, self.spec, self.report = fo, spec, report
         self.src: FinetuneSource = resolve(fo.policy, fo.algo)
         self.algo = fo.algo or self.src.algo
+        # what explores and what is relabelled: the options, or the defaults where left unset
+        self.noise_std = float(
+            LEARNER_DEFAULTS["noise_std"] if fo.noise_std is None else fo.noise_std
+        )
+        self.relabel = default_ratio(self.src.config) if fo.relabel is None else fo.relabel
         self.dir = FinetuneDir(fo.out)
         opts = fo.deploy
         plant = None if opts.plant is None else str(opts.plant)
@@ -166,10 +172,10 @@ class _Run:
     # ---- the learner ------------------------------------------------------------------------
     def learner_config(self) -> Any:
         from sim2real.finetune.learner import Learner, LearnerConfig, SimBufferConfig
-        from sim2real.finetune.relabel import default_ratio, goal_fields
+        from sim2real.finetune.relabel import goal_fields
 
         fo, src = self.fo, self.src
-        ratio = default_ratio(src.config) if fo.relabel is None else fo.relabel
+        ratio = self.relabel
         model_zip, replay = str(src.model_zip), None
         if self.resumed:
             ckpt = self.dir.run.checkpoint_dir / str(self.state["checkpoint"])
@@ -235,12 +241,10 @@ class _Run:
             stack.callback(learner.close)
             info = learner.wait_ready()
             normalizer = ObsNormalizer.from_stats(self.src.obs_stats)
-            noise = float(LEARNER_DEFAULTS["noise_std"] if self.fo.noise_std is None
-                          else self.fo.noise_std)  # fmt: skip
             actor = NumpyActor(info["kind"], info["shapes"], learner.initial_weights(),
-                               normalizer, noise)  # fmt: skip
+                               normalizer, self.noise_std)  # fmt: skip
             self.report({"event": "learner_ready", "algo": self.algo,
-                         **info, "noise_std": noise,  # what explores, not the source's
+                         **info, "noise_std": self.noise_std,  # what explores, not the source's
                          "learner_pid": learner.pid, "resumed": self.resumed,
                          "env_steps": self.state["env_steps"],
                          "episodes": self.state["episodes"]})  # fmt: skip
@@ -511,6 +515,8 @@ class _Run:
             "event": "summary",
             "out": str(self.fo.out),
             "algo": self.algo,
+            "noise_std": self.noise_std,
+            "relabel": self.relabel,
             "source": self.fo.policy,
             "backend": self.identity["backend"],
             "plant": self.identity["plant"],
