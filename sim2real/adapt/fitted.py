@@ -94,14 +94,16 @@ def centred_ranges(
 
     - actuation: ``sysid.apply.dr_centre`` (+-20 % about the fitted dead band and speed, the
       fitted dead time in control steps); the action noise stays the training preset's;
+    - dynamics: the fitted droop, +-20 % (a policy trained without it settles short on an arm
+      that sags: the `hard` plant's 0.02 rad);
     - kinematics: link deltas and joint offsets about 0 (the fitted spec holds the links, the host
       calibration the offsets) with +-3 sigma half-widths, floored (see the floors' comment);
       the tool offset stays the training range (not observable from a wrist marker).
-    Everything else (dynamics, sensing, visual, object) stays as the policy was trained."""
+    Everything else (the other dynamics keys, sensing, visual, object) stays as the policy was
+    trained."""
     out = copy.deepcopy(trained_ranges)
-    act = dict(out.get("actuation", {}))
-    act.update(dr_centre(servo, spec, control_hz)["actuation"])
-    out["actuation"] = act
+    for category, keys in dr_centre(servo, spec, control_hz).items():
+        out[category] = {**out.get(category, {}), **keys}
     link_half = max(SIGMAS * float(np.max(kin.std[3:])), LINK_FLOOR_M)
     offset_half = max(SIGMAS * float(np.max(kin.std[:3])), OFFSET_FLOOR_RAD)
     kinematics = dict(out.get("kinematics", {}))

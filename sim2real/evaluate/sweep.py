@@ -46,6 +46,7 @@ SWEEP_AXES: dict[str, SweepAxis] = {
     "max_speed": SweepAxis("actuation", "max_speed_scale", "x", (0.4, 0.7, 1.0)),
     "deadband_rad": SweepAxis("actuation", "deadband_rad", "rad", (0.004, 0.01, 0.02)),
     "link_mass": SweepAxis("dynamics", "link_mass_scale", "x", (0.8, 1.0, 1.3)),
+    "droop_rad": SweepAxis("dynamics", "actuator_droop_rad", "rad", (0.0, 0.01, 0.02, 0.03)),
 }
 DEFAULT_AXES: tuple[str, ...] = ("latency_steps", "actuator_gain", "obs_noise_px")
 MAX_AXES = 3

@@ -23,6 +23,7 @@ NEUTRAL: dict[str, dict[str, tuple[float, float]]] = {
         "joint_frictionloss_nm": (0.0, 0.0),
         "armature_scale": (1.0, 1.0),
         "actuator_gain_scale": (1.0, 1.0),
+        "actuator_droop_rad": (0.0, 0.0),
     },
     "actuation": {
         "latency_steps": (0.0, 0.0),
@@ -68,6 +69,7 @@ _NON_NEGATIVE_SUFFIXES = (
     "noise_px",
     "_jitter_m",
     "deadband_rad",
+    "droop_rad",
     "_prob",
     "radius_m",
 )

@@ -1,4 +1,12 @@
-"""Dynamics DR: link masses, joint damping, friction loss, armature, servo gain."""
+"""Dynamics DR: link masses, joint damping, friction loss, armature, servo gain and droop.
+
+Droop is the steady sag a hobby servo's proportional loop leaves under the tool's weight beyond
+what MuJoCo's gravity on the position actuator gives: the pitch joints settle ``droop`` below
+their target, as the emulator's servos do (``hardware.servo_model``: target + droop, negative on
+the y-axis joints). On a position actuator that is a constant bias ``kp * droop``: the force
+``kp * (ctrl - q) + kp * droop`` is the servo driving to ``ctrl + droop``, with no per-step
+cost.
+"""
 
 from __future__ import annotations
 
@@ -35,7 +43,16 @@ def direct_keys(ids: ModelIds) -> list[DirectKey]:
         ("joint_frictionloss_nm", n_d, None),
         ("armature_scale", n_d, None),
         ("actuator_gain_scale", n_a, None),
+        # last, so presets without droop draw exactly as before it existed
+        ("actuator_droop_rad", None, float),
     ]
+
+
+def droop_direction(model: mujoco.MjModel, ids: ModelIds) -> np.ndarray:
+    """Per servo actuator: -1 on a pitch (y-axis) joint, 0 elsewhere, as the emulator's
+    ``ServoParams.from_spec`` sags them."""
+    joints = model.dof_jntid[ids.arm_dofs]
+    return -(np.abs(model.jnt_axis[joints, 1]) > 0.5).astype(float)
 
 
 def apply_reference(
@@ -54,6 +71,10 @@ def apply_reference(
     model.actuator_gainprm[a, 0] = nominal["actuator_gainprm"][a, 0] * gain
     model.actuator_biasprm[a, 1] = nominal["actuator_biasprm"][a, 1] * gain
     model.actuator_biasprm[a, 2] = nominal["actuator_biasprm"][a, 2] * gain
+    droop_rad = droop_direction(model, ids) * float(params["actuator_droop_rad"])
+    model.actuator_biasprm[a, 0] = (
+        nominal["actuator_biasprm"][a, 0] + model.actuator_gainprm[a, 0] * droop_rad
+    )
 
 
 @dataclass(frozen=True)
@@ -69,6 +90,8 @@ class _Plan:
     armature: np.ndarray
     gain: np.ndarray  # (n_a,) gainprm[:, 0]
     bias: np.ndarray  # (n_a, 2) biasprm[:, 1:3]
+    bias0: np.ndarray  # (n_a,) biasprm[:, 0]
+    droop: np.ndarray  # (n_a,) droop_direction
     body_mass: np.ndarray  # the model's own arrays (views of its buffers)
     body_inertia: np.ndarray
     dof_damping: np.ndarray
@@ -90,6 +113,8 @@ class _Plan:
             armature=nominal["dof_armature"][d],
             gain=nominal["actuator_gainprm"][a, 0],
             bias=nominal["actuator_biasprm"][a, 1:3],
+            bias0=nominal["actuator_biasprm"][a, 0],
+            droop=droop_direction(model, ids),
             body_mass=model.body_mass,
             body_inertia=model.body_inertia,
             dof_damping=model.dof_damping,
@@ -117,3 +142,6 @@ def apply(model: mujoco.MjModel, nominal: ModelSnapshot, ids: ModelIds, params: 
     # A position servo is gain kp and bias -kp*q - kv*qdot: scale both to keep it a servo.
     p.gainprm[p.a, 0] = p.gain * gain
     p.biasprm[p.a, 1:3] = p.bias * gain[:, None]
+    p.biasprm[p.a, 0] = p.bias0 + p.gainprm[p.a, 0] * (
+        p.droop * float(params["actuator_droop_rad"])
+    )

@@ -8,6 +8,8 @@ onto what a torque-controlled robosuite arm has (docs/robosuite.md has the table
   loss, armature); ``actuator_gain_scale`` scales the arm's torque motors directly (the modders
   have no actuator setter). ``joint_frictionloss_nm`` is *added* to the robot's own friction loss:
   the native arm's nominal is 0, so it means "extra friction" on both backends.
+  ``actuator_droop_rad`` (a hobby servo's sag) is sampled but ignored: torque motors have no
+  position loop to sag.
 - ``visual`` → ``LightingModder`` (diffuse, position), ``CameraModder`` (position, fovy) and a
   colour jitter of each geom's rendered colour. robosuite's ``TextureModder`` cannot be used: on
   mujoco 3 it fails on construction (``MjModel`` has no ``tex_rgb``), so colours go through geom
@@ -53,6 +55,7 @@ LEVER_M = 0.5
 # Physical units of one command dimension → its size per radian of "command noise".
 UNIT_PER_RAD: dict[str, float] = {"rad": 1.0, "m": LEVER_M, "N*m": 0.0}
 IGNORED_KEYS: dict[str, tuple[str, ...]] = {
+    "dynamics": ("actuator_droop_rad",),
     "actuation": ("deadband_rad", "quantisation_rad"),
 }
 

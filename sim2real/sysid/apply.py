@@ -39,10 +39,15 @@ def dr_centre(
     fit: ServoFit, spec: ArmSpec, control_hz: float = 20.0
 ) -> dict[str, dict[str, list[float]]]:
     """The actuation ranges of a preset, ±20 % around the fit (latency in control steps at
-    ``control_hz``, the policy's rate).
+    ``control_hz``, the policy's rate), and the fitted droop's, ±20 %, in ``dynamics`` (the
+    sim's servo sag, ``randomization.dynamics``; 0 when the fit had none).
 
     ``max_speed_scale`` is relative to the *updated* spec, so it is centred on 1."""
+    droop_rad = max(0.0, -float(fit.droop_rad))  # the fit's sag is signed, downwards
     return {
+        "dynamics": {
+            "actuator_droop_rad": [round(0.8 * droop_rad, 5), round(1.2 * droop_rad, 5)],
+        },
         "actuation": {
             "latency_steps": latency_steps_range(fit.latency_s, control_hz),
             "max_speed_scale": [0.8, 1.2],
@@ -51,7 +56,7 @@ def dr_centre(
                 round(float(1.2 * fit.deadband_rad), 5),
             ],
             "quantisation_rad": [float(spec.servo.resolution_rad)] * 2,
-        }
+        },
     }
 
 

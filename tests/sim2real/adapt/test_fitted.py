@@ -114,3 +114,10 @@ def test_centred_ranges_narrow_about_the_fit_with_floors_and_keep_the_rest() -> 
     assert tight["actuation"]["action_noise_rad"] == trained["actuation"]["action_noise_rad"]
     assert tight["sensing"] == trained["sensing"] and tight["dynamics"] == trained["dynamics"]
     DRConfig.from_dict("adapt", tight)  # a valid preset
+    # a fit that sags (sysid's droop is signed, downwards): the sim's droop is centred on it
+    sagging = dataclasses.replace(SERVO, droop_rad=-0.02)
+    sag = centred_ranges(trained, sagging, _truth_fit("hard"), SPEC, 20.0)["dynamics"]
+    assert sag["actuator_droop_rad"] == pytest.approx([0.016, 0.024])
+    assert {k: v for k, v in sag.items() if k != "actuator_droop_rad"} == {
+        k: v for k, v in trained["dynamics"].items() if k != "actuator_droop_rad"
+    }

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import sim2real.envs  # noqa: F401
-from sim2real.randomization import DomainRandomizer, dynamics, kinematics, visual
+from sim2real.randomization import DomainRandomizer, DRConfig, dynamics, kinematics, visual
 from sim2real.randomization.base import TOUCHED_FIELDS
+from sim2real.randomization.config import Range
 
 PAIRS: dict[str, tuple[Callable[..., None], Callable[..., None]]] = {
     "dynamics": (dynamics.apply, dynamics.apply_reference),
@@ -20,14 +21,34 @@ PAIRS: dict[str, tuple[Callable[..., None], Callable[..., None]]] = {
 }
 
 
-def _randomizer(env_id: str, preset: str) -> DomainRandomizer:
+# the shipped presets have no droop: this one writes the bias term with the gain it scales
+SAGGING = DRConfig(
+    "sagging",
+    {
+        "dynamics": {
+            "actuator_gain_scale": Range(0.7, 1.3),
+            "actuator_droop_rad": Range(0.0, 0.03),
+        }
+    },
+)
+
+
+def _randomizer(env_id: str, preset: str | DRConfig) -> DomainRandomizer:
     return gym.make(env_id, dr=preset).unwrapped.randomizer  # type: ignore[no-any-return]
 
 
-@pytest.mark.parametrize("category", list(PAIRS))
+CASES = [
+    pytest.param(preset, category, id=f"{preset}-{category}")
+    for preset in ("default", "strong")
+    for category in PAIRS
+] + [pytest.param(SAGGING, "dynamics", id="sagging-dynamics")]
+
+
 @pytest.mark.parametrize("env_id", ["Sim2Real/Arm3Reach-v0", "Sim2Real/Arm3Pick-v0"])
-@pytest.mark.parametrize("preset", ["default", "strong"])
-def test_planned_apply_writes_the_reference_bytes(env_id: str, preset: str, category: str) -> None:
+@pytest.mark.parametrize(("preset", "category"), CASES)
+def test_planned_apply_writes_the_reference_bytes(
+    env_id: str, preset: str | DRConfig, category: str
+) -> None:
     fast, ref = _randomizer(env_id, preset), _randomizer(env_id, preset)
     apply, apply_reference = PAIRS[category]
     rng = np.random.default_rng(7)
