@@ -143,6 +143,12 @@ class DeployContract(ABC):
         """The desired goal the commanded-pose fields measure against (None: the layout has
         no ``target_goal_delta``)."""
 
+    def shaping(self) -> float | None:
+        """The task's dense training shaping on the last ``readings``' percepts, for learning
+        on the arm (``finetune.ArmEnv``); None: the task has no shaping that percepts can give
+        (its env's shaping, if any, reads MuJoCo state only)."""
+        return None
+
     # ---- success ---------------------------------------------------------------------------
     @abstractmethod
     def score(self, view: View, step: int) -> str | None:

@@ -67,6 +67,20 @@ def cube_estimate(
     return cube_m
 
 
+def percept_shaping(
+    tool_m: np.ndarray, cube_m: np.ndarray, rest_z_m: float, is_holding: bool
+) -> float:
+    """``PickTask.shaping`` from what an arm without MuJoCo knows: the tool and cube estimates,
+    and the servo readings' ``holding`` for "both fingers on the cube". The same terms and
+    weights (``fused.grasp_shaping``), so a policy fine-tuned on the arm is paid as it was
+    trained."""
+    reach = -REACH_WEIGHT_PER_M * float(np.linalg.norm(np.asarray(tool_m) - np.asarray(cube_m)))
+    if not is_holding:
+        return reach
+    lift = min(max(float(cube_m[2]) - rest_z_m, 0.0), LIFT_M)
+    return reach + GRASP_BONUS + LIFT_WEIGHT_PER_M * lift
+
+
 def lift_goal(cube_rest_m: np.ndarray) -> np.ndarray:
     """The lift point above where the cube rests (success: the cube within 2 cm of it)."""
     return np.asarray(cube_rest_m, dtype=float) + (0.0, 0.0, LIFT_M)
@@ -110,6 +124,7 @@ class PickContract(DeployContract):
         self._blind_periods = 0
         self._periods = 0
         self._max_blind_s = 0.0
+        self._shaping: float | None = None  # the last readings' ``percept_shaping``
 
     def placement(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
         xy, yaw = sample_cube_pose(rng)
@@ -130,6 +145,7 @@ class PickContract(DeployContract):
         self._periods += 1
         self._blind_periods += int(blind > 0.0)
         self._max_blind_s = max(self._max_blind_s, blind)
+        self._shaping = percept_shaping(tool, cube, self.goal[2] - LIFT_M, self._holding_now)
         return {
             "ee_pos": tool,
             **cube_readings(tool, cube, blind),
@@ -139,6 +155,9 @@ class PickContract(DeployContract):
 
     def goal_m(self, percept: Percept, step: int) -> np.ndarray | None:
         return self.goal
+
+    def shaping(self) -> float | None:
+        return self._shaping
 
     def _holding(self, view: View) -> bool:
         if view.commanded_rad is None:

@@ -12,7 +12,9 @@ One ``step`` is one control period: decode the action against the last targets, 
 counted and logged, never an error), read the joints, perceive, judge the period with the
 contract, and build the next observation. The reward is the training env's own function
 (``envs.base.REWARDS``) on the perceived goal error, the observation's ``goal_delta``; its
-success bonus uses the task's threshold, as ``Arm3Env.step`` does.
+success bonus uses the task's threshold, as ``Arm3Env.step`` does. A task that trains with a
+dense shaping term gets it from the contract, on percepts (pick: approach, grasp from the
+gripper's readings, lift from the cube estimate).
 
 Episode starts follow the contract: sim and mock place the objects themselves; on a real arm
 the arm homes and a person places them (with ``HumanKeys``, after the reset key), the reach
@@ -78,8 +80,10 @@ class ArmEnvConfig:
     rate_hz: float = 20.0
     episode_steps: int | None = None  # None: the policy's training episode length
     reward: str | None = None  # a name in envs.base.REWARDS; None: the task's default
-    # The training env adds the task's dense shaping (pick: contacts, lift) to the goal term.
-    # It reads MuJoCo state, not percepts, so a task that has one is refused unless this is off.
+    # The training env adds the task's dense shaping (pick: approach, grasp, lift) to the goal
+    # term. On the arm it comes from percepts (``DeployContract.shaping``: pick's from the tool
+    # and cube estimates and the gripper's readings); a task whose shaping only MuJoCo state
+    # can give is refused unless this is off (the goal term alone).
     shaping: bool = True
     start_timeout_s: float = 10.0  # how long an episode waits for its objects to be seen, still
     blind_timeout_s: float = 2.0  # an estimate missing this long mid-episode ends the run
@@ -179,12 +183,14 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.io, self.arm_spec, self.opts = io, spec, opts
         self.config = config = config or ArmEnvConfig()
         task = TASKS[io.task]
-        if config.shaping and task.shaping is not Task.shaping:
+        percept_shaping = io.contract.shaping is not DeployContract.shaping
+        if config.shaping and task.shaping is not Task.shaping and not percept_shaping:
             raise ConfigError(
                 f"task {io.task!r} trains with a dense shaping term that reads MuJoCo state "
                 f"({task.__name__}.shaping), not percepts: pass shaping=False to learn on the "
                 "goal term alone"
             )
+        self.shaped = config.shaping and percept_shaping
         names = {f.name for f in io.builder.fields}
         if "goal_delta" not in names:
             raise ConfigError(
@@ -361,6 +367,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             self._raise_if_estop_key(exc)
             raise
         reward = float(self._reward_fn(d_m, d_m < self._success_m))
+        shaping = contract.shaping() if self.shaped else None
+        if shaping is not None:
+            reward += shaping
         truncated = self._step >= self.episode_steps or reason is not None
         out = contract.outcome()
         info: dict[str, Any] = {

@@ -16,7 +16,14 @@ import sim2real.envs as envs
 from hardware.spec import load_spec
 from sim2real.actuation import ServoActuation
 from sim2real.envs import fused
-from sim2real.envs.pick import BLIND_CAP_S, HOLD_MARGIN_RAD, PickTask, cube_estimate, cube_readings
+from sim2real.envs.pick import (
+    BLIND_CAP_S,
+    HOLD_MARGIN_RAD,
+    PickTask,
+    cube_estimate,
+    cube_readings,
+    percept_shaping,
+)
 from sim2real.envs.pick import holding as pick_holding
 from sim2real.envs.reach import ReachTask
 from sim2real.envs.trace import TraceTask
@@ -303,6 +310,11 @@ def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
                     grasped += 1
                     want = want + 0.5 + 10.0 * u.task.lift_m(u)
                 assert u.task.shaping(u) == want
+                # the arm's version (``finetune.ArmEnv``), fed what it would perceive
+                assert percept_shaping(
+                    u.ee_position(), u.task.cube_position(u), u.task.rest_z_m,
+                    u.task.is_grasped(u),
+                ) == pytest.approx(want, abs=1e-12)  # fmt: skip
                 gated = fused.grasp_reach(
                     u.ee_position(), u.task.cube_position(u), u.data.geom_xpos,
                     u.task.shaping_ids, u.task.shaping_prm,

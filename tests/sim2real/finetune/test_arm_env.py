@@ -20,10 +20,12 @@ from sim2real.deploy.loop import DeployStopError
 from sim2real.deploy.policy_io import PolicyIO
 from sim2real.deploy.runner import DeployOptions
 from sim2real.envs.base import REWARDS, Arm3Env
-from sim2real.envs.pick import LIFT_M
+from sim2real.envs.contract import DeployContract
+from sim2real.envs.pick import GRASP_BONUS, LIFT_M, LIFT_WEIGHT_PER_M, REACH_WEIGHT_PER_M
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.finetune.arm_env import ArmEnv, ArmEnvConfig
 from sim2real.finetune.keys import RESET_DONE, HumanKeys
+from tests.sim2real.deploy.conftest import pick_policy
 
 from .conftest import MOCK, ik_reach  # type: ignore[import-not-found]
 
@@ -258,12 +260,47 @@ def test_on_a_world_nobody_simulates_reach_has_a_virtual_target_and_a_reset_key(
         env.close()
 
 
-def test_pick_starts_from_the_cube_it_sees_and_refuses_mujoco_shaping(
-    spec: ArmSpec, pick_io: PolicyIO
+def test_a_task_whose_shaping_needs_mujoco_state_is_refused(
+    spec: ArmSpec, pick_io: PolicyIO, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    # a contract that offers no shaping from percepts, for a task that trains with one
+    monkeypatch.setattr(pick_io.contract, "shaping", DeployContract.shaping)
     with pytest.raises(ConfigError, match=r"PickTask.shaping.*shaping=False") as err:
         ArmEnv(pick_io, spec, SIM)
     assert "\n" not in str(err.value)
+
+
+def test_pick_is_paid_its_training_shaping_from_percepts(spec: ArmSpec, pick_io: PolicyIO) -> None:
+    """A scripted grasp on SimArm's MuJoCo: approaching, the shaping is the approach term on the
+    tool and cube estimates; holding (the gripper's readings), the grasp bonus and the lift."""
+    env = ArmEnv(pick_io, spec, SIM)
+    try:
+        assert env.shaped
+        obs, _ = env.reset(seed=2)
+        act = pick_policy(spec, pick_io.builder, pick_io.decoder)
+        paid: list[tuple[float, dict[str, np.ndarray]]] = []
+        truncated = False
+        while not truncated:
+            obs, reward, _, truncated, info = env.step(act(obs).astype(np.float32))
+            f = pick_io.builder.split(obs)
+            d = float(np.linalg.norm(f["goal_delta"]))
+            paid.append((reward - REWARDS[env.reward_name](d, d < 0.02), f))
+        first, f0 = paid[0]
+        assert first == pytest.approx(
+            -REACH_WEIGHT_PER_M * np.linalg.norm(f0["ee_pos"] - f0["cube_pos"]), abs=1e-5
+        )
+        lifted = [s for s, f in paid if f["cube_pos"][2] - (f["goal_pos"][2] - LIFT_M) > 0.03]
+        assert lifted, "the scripted grasp never lifted the cube 3 cm"
+        # held and 3 cm up: the bonus and at least 0.3 of lift, less a small approach term
+        assert max(lifted) > GRASP_BONUS + LIFT_WEIGHT_PER_M * 0.03 - 0.05, max(lifted)
+        assert info["is_success"], info
+    finally:
+        env.close()
+
+
+def test_pick_starts_from_the_cube_it_sees_on_the_goal_term_alone(
+    spec: ArmSpec, pick_io: PolicyIO
+) -> None:
     env = ArmEnv(pick_io, spec, SIM, ArmEnvConfig(shaping=False))
     try:
         obs, _ = env.reset(seed=2)
