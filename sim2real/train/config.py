@@ -74,6 +74,7 @@ class TrainConfig:
     max_wall_s: float = 0.0  # stop (and save) after this much wall time; 0 = no limit
     augment: Mapping[str, Any] | None = None  # image augmentation in updates, see augment.py
     privileged_critic: bool = False  # asymmetric actor-critic, see asymmetric.py
+    warm_start: Mapping[str, Any] | None = None  # start from a teacher's experience, warmstart.py
     spec_path: str | None = None
     preset: str = ""
     progress: bool = True
@@ -157,6 +158,14 @@ class TrainConfig:
             raise ConfigError(
                 f"policy {self.policy!r}: an asymmetric or distilled run builds its own policy"
             )
+        if self.warm_start is not None:
+            from sim2real.train.warmstart import WarmStart, check_algo
+
+            check_algo(algo.name)
+            if self.her:
+                raise ConfigError("warm_start cannot be used with --her (a flat observation)")
+            WarmStart.from_mapping(self.warm_start)
+            object.__setattr__(self, "warm_start", dict(self.warm_start))
         _check_hyperparams(algo.name, self.hyperparams)
         _check_env_kwargs(self.env_id, self.env_kwargs)
         object.__setattr__(

@@ -365,7 +365,30 @@ def train(cfg: TrainConfig) -> TrainResult:
         shutil.rmtree(rd.path, ignore_errors=True)
         raise
     rd.write_meta(meta)
+    if cfg.warm_start is not None:
+        _warm_start(cfg, rd, model, meta)
     return session.learn(model)
+
+
+def _warm_start(cfg: TrainConfig, rd: RunDir, model: BaseAlgorithm, meta: RunMeta) -> None:
+    """The teacher's stages (``warmstart``) before the first update; their figures in
+    ``warm_start.json``. A failure leaves no half-started run behind."""
+    from sim2real.export.formats import load_policy
+    from sim2real.train.atomic import atomic_write_json
+    from sim2real.train.warmstart import WarmStart, check_teacher, warm_start
+
+    ws = WarmStart.from_mapping(cfg.warm_start)
+    try:
+        teacher = load_policy(ws.teacher)
+        check_teacher(ws.teacher, teacher.meta, cfg.env_id, meta.obs_layout, meta.action_dim)
+        figures = warm_start(model, cfg.algo, ws, teacher, cfg.seed)
+    except BaseException:
+        env = model.get_env()
+        if env is not None:
+            env.close()
+        shutil.rmtree(rd.path, ignore_errors=True)
+        raise
+    atomic_write_json(rd.path / "warm_start.json", figures)
 
 
 def _setup(
