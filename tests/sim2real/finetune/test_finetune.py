@@ -300,3 +300,38 @@ def test_sigkill_mid_finetune_the_learner_dies_and_resume_loses_at_most_one_epis
     summary = json.loads(resumed.stdout.strip().splitlines()[-1])
     assert summary["episodes"] == state["episodes"] + 1
     assert summary["env_steps"] > state["env_steps"]
+
+
+def test_pick_finetunes_from_the_shipped_td3_paid_its_shaping_from_percepts(
+    tmp_path: Path, spec: ArmSpec
+) -> None:
+    """pick-td3 (warm-started from pick-ppo) learns on SimArm's MuJoCo: the learner's rewards are
+    the env's (goal term plus pick's shaping from percepts, no action-rate penalty: td3_pick has
+    none) and its actor moves off the shipped one."""
+    from sim2real.envs.base import REWARDS
+    from sim2real.finetune.checkpoint import FinetuneDir
+    from sim2real.policies import shipped
+
+    out = tmp_path / "ft"
+    opts = _options(out, policy="pick-td3", deploy=DeployOptions(backend="sim"), max_episodes=2)
+    summary = finetune(opts, spec)
+    assert summary["stopped"] is None and summary["episodes"] == 2
+    assert summary["relabel"] == 0.0  # pick's goal is not relabelled
+    source = shipped()["pick-td3"].checkpoint
+    assert source is not None and summary["learner_updates"] > 0
+    assert not np.allclose(_actor(out / "model.zip"), _actor(source[0]))
+    logs = [np.load(out / "episodes" / f"episode_{k:05d}.npz") for k in range(2)]
+    state = json.loads((out / "finetune.json").read_text())
+    ckpt = FinetuneDir(out).run.checkpoint_dir / state["checkpoint"]
+    with np.load(ckpt.with_name(ckpt.stem + ".replay.npz")) as rep:
+        rewards = rep["rewards"]
+    logged = np.concatenate([log["reward"] for log in logs])
+    assert np.allclose(rewards, logged, atol=1e-5)
+    # the shaping is paid: the reward is not the goal term of the perceived distance alone
+    from sim2real.deploy.policy_io import io_for
+    from sim2real.envs.base import TASKS
+
+    goal_delta = io_for(spec, "Sim2Real/Arm3Pick-v0").builder.split(logs[0]["obs"])["goal_delta"]
+    d = np.linalg.norm(goal_delta[1:], axis=1)  # a step's reward is on the next observation
+    goal_term = np.asarray(REWARDS[TASKS["pick"].default_reward](d, d < 0.02))
+    assert np.max(np.abs(logs[0]["reward"][:-1] - goal_term)) > 0.05
