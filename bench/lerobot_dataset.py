@@ -1,5 +1,6 @@
-"""A 10-episode pick dataset from ``sim2real evaluate --record-dataset``, loaded by LeRobot's own
-``LeRobotDataset`` (issue 17).
+"""A 10-episode pick dataset recorded from the mock arm's loop (``sim2real deploy --backend mock
+--record-dataset``; ``--source evaluate`` takes the simulator's evaluation rollouts instead),
+loaded by LeRobot's own ``LeRobotDataset`` (issue 17).
 
 LeRobot needs numpy >= 2 and Python >= 3.12; the standalone ``lerobot-dataset`` package reads the
 same v3.0 format on Python 3.11 but pins packaging < 26, which clashes with this venv. So the
@@ -12,8 +13,9 @@ frames, fps, features, task, and the video frames it decoded compared with our o
 (mean absolute difference in [0, 1] pixel units; a frame from the wrong episode or step differs
 by far more). Exits 1 if any figure disagrees.
 
-Run: .venv/bin/python bench/lerobot_dataset.py [--run RUN_DIR] [--episodes 10]
-Without --run it trains a tiny PPO pick policy (the format, not the policy, is under test).
+Run: .venv/bin/python bench/lerobot_dataset.py [--source mock|evaluate] [--run POLICY] [--episodes 10]
+The mock source deploys the shipped ``pick-ppo`` by default; the evaluate source, without --run,
+trains a tiny PPO pick policy (the format, not the policy, is under test).
 """
 
 from __future__ import annotations
@@ -99,31 +101,40 @@ def main() -> int:
 
     torch.set_num_threads(1)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--run", help="pick run dir or exported policy (default: a tiny PPO run)")
+    ap.add_argument("--source", choices=("mock", "evaluate"), default="mock")
+    ap.add_argument("--run", help="pick policy: run dir, exported file or shipped name")
     ap.add_argument("--episodes", type=int, default=10)
     args = ap.parse_args()
     python = ensure_venv()
-    run = Path(args.run) if args.run else tiny_pick_run()
-    out = CACHE / "bench" / "lerobot-pick"
+    out = CACHE / "bench" / f"lerobot-pick-{args.source}"
+    if args.source == "mock":
+        import shutil
+
+        run = args.run or "pick-ppo"
+        shutil.rmtree(out, ignore_errors=True)  # deploy refuses an existing dataset
+        command = ["deploy", run, "--backend", "mock", "--episodes", str(args.episodes)]
+    else:
+        run = args.run or str(tiny_pick_run())
+        command = ["evaluate", run, "--episodes", str(args.episodes), "--overwrite"]
     buf = io.StringIO()
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(buf):
-        code = cli(
-            ["evaluate", str(run), "--episodes", str(args.episodes), "--record-dataset", str(out)]
-            + ["--overwrite", "--json"]
-        )
+        code = cli([*command, "--record-dataset", str(out), "--json"])
     wall_s = time.perf_counter() - t0
     if code != 0:
-        print(json.dumps({"error": f"sim2real evaluate exited {code}"}), flush=True)
+        print(json.dumps({"error": f"sim2real {command[0]} exited {code}"}), flush=True)
         return 1
     rec = json.loads(buf.getvalue().strip().splitlines()[-1])
+    info = json.loads((out / "meta" / "info.json").read_text())
     print(
         json.dumps(
             {
                 "bench": "lerobot_record",
+                "source": args.source,
+                "policy": run,
                 "env": "Sim2Real/Arm3Pick-v0",
                 "episodes": rec["episodes"],
-                "frames": rec["frames"],
+                "frames": info["total_frames"],
                 "success_rate": rec["success_rate"],
                 "wall_s": round(wall_s, 1),
                 "machine": f"{platform.machine()} {os.cpu_count()} cpu",
@@ -131,7 +142,7 @@ def main() -> int:
         ),
         flush=True,
     )
-    ref = out.parent / "lerobot-pick-ref.npz"
+    ref = out.parent / f"lerobot-pick-{args.source}-ref.npz"
     n_ref = reference_frames(out, ref)
     check = subprocess.run(
         [str(python), str(ROOT / "bench" / "support" / "lerobot_check.py"), str(out), str(ref)],
@@ -145,11 +156,10 @@ def main() -> int:
         )
         return 1
     got = json.loads(check.stdout.strip().splitlines()[-1])
-    info = json.loads((out / "meta" / "info.json").read_text())
     want = {
         "num_episodes": args.episodes,
-        "num_frames": rec["frames"],
-        "len": rec["frames"],
+        "num_frames": info["total_frames"],
+        "len": info["total_frames"],
         "fps": info["fps"],
         "features": sorted(info["features"]),
         "video_keys": ["observation.images.cam_left", "observation.images.cam_right"],
