@@ -29,6 +29,9 @@ HELD_RAMP_STEPS = 20
 HELD_SETTLE_STEPS = 20
 HELD_RAMP_SQUEEZE_M = 0.004  # finger command below the cube face at the ramp's end (force-capped)
 BLIND_CAP_S = 2.0  # the cube_blind_s reading saturates here: longer is "not seen this episode"
+# The tool (between the fingertips) is this close to the cube's centre when both fingers hold it:
+# the cube is 21-29 mm wide and the fingers close on its faces.
+GRASP_NEAR_M = 0.02
 
 
 def cube_readings(ee_m: np.ndarray, cube_m: np.ndarray, blind_s: float) -> dict[str, np.ndarray]:
@@ -71,11 +74,14 @@ def percept_shaping(
     tool_m: np.ndarray, cube_m: np.ndarray, rest_z_m: float, is_holding: bool
 ) -> float:
     """``PickTask.shaping`` from what an arm without MuJoCo knows: the tool and cube estimates,
-    and the servo readings' ``holding`` for "both fingers on the cube". The same terms and
+    and for "both fingers on the cube" the servo readings' ``holding`` with the tool at the cube
+    (``holding`` alone is also true for the few periods a gripper closing in empty air takes to
+    read closed: a learner would be paid for snapping it shut anywhere). The same terms and
     weights (``fused.grasp_shaping``), so a policy fine-tuned on the arm is paid as it was
     trained."""
-    reach = -REACH_WEIGHT_PER_M * float(np.linalg.norm(np.asarray(tool_m) - np.asarray(cube_m)))
-    if not is_holding:
+    apart_m = float(np.linalg.norm(np.asarray(tool_m) - np.asarray(cube_m)))
+    reach = -REACH_WEIGHT_PER_M * apart_m
+    if not (is_holding and apart_m < GRASP_NEAR_M):
         return reach
     lift = min(max(float(cube_m[2]) - rest_z_m, 0.0), LIFT_M)
     return reach + GRASP_BONUS + LIFT_WEIGHT_PER_M * lift

@@ -49,10 +49,11 @@ def direct_keys(ids: ModelIds) -> list[DirectKey]:
 
 
 def droop_direction(model: mujoco.MjModel, ids: ModelIds) -> np.ndarray:
-    """Per servo actuator: -1 on a pitch (y-axis) joint, 0 elsewhere, as the emulator's
-    ``ServoParams.from_spec`` sags them."""
+    """Per servo actuator: -1 on a pitch (y-axis hinge) joint, 0 elsewhere (a slide, such as
+    the Kuka gripper's, does not sag), as the emulator's ``ServoParams.from_spec`` sags them."""
     joints = model.dof_jntid[ids.arm_dofs]
-    return -(np.abs(model.jnt_axis[joints, 1]) > 0.5).astype(float)
+    hinge = model.jnt_type[joints] == mujoco.mjtJoint.mjJNT_HINGE
+    return -((np.abs(model.jnt_axis[joints, 1]) > 0.5) & hinge).astype(float)
 
 
 def apply_reference(

@@ -6,6 +6,7 @@ newest checkpoint with fresh env seeds (recorded, so evaluation can prove its se
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import datetime as dt
 import importlib.metadata
@@ -382,13 +383,16 @@ def _warm_start(cfg: TrainConfig, rd: RunDir, model: BaseAlgorithm, meta: RunMet
         teacher = load_policy(ws.teacher)
         check_teacher(ws.teacher, teacher.meta, cfg.env_id, meta.obs_layout, meta.action_dim)
         figures = warm_start(model, cfg.algo, ws, teacher, cfg.seed)
+        atomic_write_json(rd.path / "warm_start.json", figures)
     except BaseException:
         env = model.get_env()
-        if env is not None:
-            env.close()
+        # closing may fail itself (subprocess workers killed by the same Ctrl-C); the run is
+        # removed either way
+        with contextlib.suppress(Exception):
+            if env is not None:
+                env.close()
         shutil.rmtree(rd.path, ignore_errors=True)
         raise
-    atomic_write_json(rd.path / "warm_start.json", figures)
 
 
 def _setup(

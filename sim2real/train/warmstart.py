@@ -88,30 +88,33 @@ class WarmStart:
         return cls(**dict(data))
 
 
-def _td3_critic_update(model: Any, batch_size: int) -> float:
-    """One update of TD3's (or DDPG's: no smoothing, one Q) critic on its own target, the
-    actor fixed; SB3's ``TD3.train`` without the actor step."""
+def _td3_critic_update(model: Any, batch_size: int, k: int) -> float:
+    """Update ``k`` of TD3's (or DDPG's: no smoothing, one Q) critic on its own target, the
+    actor fixed: SB3's ``TD3.train`` without the actor step (n-step discounts where the buffer
+    has them; the critic target follows every ``policy_delay`` updates, as there)."""
     data = model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
+    discounts = data.discounts if data.discounts is not None else model.gamma
     with th.no_grad():
         noise = data.actions.clone().data.normal_(0, model.target_policy_noise)
         noise = noise.clamp(-model.target_noise_clip, model.target_noise_clip)
         next_actions = (model.actor_target(data.next_observations) + noise).clamp(-1, 1)
         next_q = th.cat(model.critic_target(data.next_observations, next_actions), dim=1)
         next_q, _ = th.min(next_q, dim=1, keepdim=True)
-        target_q = data.rewards + (1 - data.dones) * model.gamma * next_q
+        target_q = data.rewards + (1 - data.dones) * discounts * next_q
     current = model.critic(data.observations, data.actions)
     loss = sum(functional.mse_loss(q, target_q) for q in current)
     assert isinstance(loss, th.Tensor)
     model.critic.optimizer.zero_grad()
     loss.backward()
     model.critic.optimizer.step()
-    polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
-    polyak_update(model.critic_batch_norm_stats, model.critic_batch_norm_stats_target, 1.0)
+    if (k + 1) % model.policy_delay == 0:
+        polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
+        polyak_update(model.critic_batch_norm_stats, model.critic_batch_norm_stats_target, 1.0)
     return float(loss.item())
 
 
-# algo -> one critic-only update on a replay batch (returns the loss)
-CRITIC_UPDATES: dict[str, Callable[[Any, int], float]] = {
+# algo -> critic-only update k on a replay batch (returns the loss)
+CRITIC_UPDATES: dict[str, Callable[[Any, int, int], float]] = {
     "td3": _td3_critic_update,
     "ddpg": _td3_critic_update,
 }
@@ -212,7 +215,7 @@ def warm_start(
     # 3. evaluate the cloned actor
     t2 = time.perf_counter()
     batch = int(model.batch_size)
-    critic_losses = [update(model, batch) for _ in range(ws.critic_updates)]
+    critic_losses = [update(model, batch, k) for k in range(ws.critic_updates)]
     tenth = max(len(critic_losses) // 10, 1)
     head, tail = critic_losses[:tenth], critic_losses[-tenth:]
     venv.reset()  # learn() starts its episodes afresh

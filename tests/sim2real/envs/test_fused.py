@@ -328,3 +328,15 @@ def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
         env.close()
     assert grasped > 10  # the grasp branch was exercised
     assert near > grasped and far > 10  # and both sides of the contact-list gate
+
+
+def test_the_arm_pays_no_grasp_bonus_for_a_gripper_closing_in_empty_air() -> None:
+    """On the arm "holding" is the gripper reading open while commanded closed: true for the few
+    periods a gripper closing on nothing takes. Only at the cube is that a grasp."""
+    tool, rest_z = np.array([0.15, 0.0, 0.05]), 0.0125
+    cube = np.array([0.15, 0.0, 0.0125])  # 3.75 cm under the tool
+    assert percept_shaping(tool, cube, rest_z, True) == percept_shaping(tool, cube, rest_z, False)
+    held = tool + (0.0, 0.0, -0.005)  # in the fingers, lifted 3.25 cm
+    assert percept_shaping(tool, held, rest_z, True) == pytest.approx(
+        -2.0 * 0.005 + 0.5 + 10.0 * (held[2] - rest_z)
+    )

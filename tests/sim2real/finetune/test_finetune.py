@@ -313,7 +313,8 @@ def test_pick_finetunes_from_the_shipped_td3_paid_its_shaping_from_percepts(
     from sim2real.policies import shipped
 
     out = tmp_path / "ft"
-    opts = _options(out, policy="pick-td3", deploy=DeployOptions(backend="sim"), max_episodes=2)
+    sim = DeployOptions(backend="sim", sim_clock="lockstep")
+    opts = _options(out, policy="pick-td3", deploy=sim, max_episodes=2)
     summary = finetune(opts, spec)
     assert summary["stopped"] is None and summary["episodes"] == 2
     assert summary["relabel"] == 0.0  # pick's goal is not relabelled

@@ -1,5 +1,5 @@
 """Dynamics DR's servo droop on real MuJoCo physics: the pitch joints settle that far below their
-targets, the base does not, and a preset without droop writes the model exactly as before."""
+targets and the base does not (``test_appliers`` holds the planned writes to the reference's)."""
 
 from __future__ import annotations
 
