@@ -130,7 +130,9 @@ class PickContract(DeployContract):
         self._blind_periods = 0
         self._periods = 0
         self._max_blind_s = 0.0
-        self._shaping: float | None = None  # the last readings' ``percept_shaping``
+        # the last readings' tool, cube estimate and grasp: ``shaping``'s inputs, kept so the
+        # deploy loop (which never asks) pays nothing for it
+        self._last_seen: tuple[np.ndarray, np.ndarray, bool] | None = None
 
     def placement(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
         xy, yaw = sample_cube_pose(rng)
@@ -151,7 +153,7 @@ class PickContract(DeployContract):
         self._periods += 1
         self._blind_periods += int(blind > 0.0)
         self._max_blind_s = max(self._max_blind_s, blind)
-        self._shaping = percept_shaping(tool, cube, self.goal[2] - LIFT_M, self._holding_now)
+        self._last_seen = (tool, cube, self._holding_now)
         return {
             "ee_pos": tool,
             **cube_readings(tool, cube, blind),
@@ -163,7 +165,10 @@ class PickContract(DeployContract):
         return self.goal
 
     def shaping(self) -> float | None:
-        return self._shaping
+        if self._last_seen is None:
+            return None
+        tool, cube, is_holding = self._last_seen
+        return percept_shaping(tool, cube, self.goal[2] - LIFT_M, is_holding)
 
     def _holding(self, view: View) -> bool:
         if view.commanded_rad is None:
