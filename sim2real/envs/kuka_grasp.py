@@ -212,10 +212,10 @@ class GraspActuation:
         return out
 
 
-def privileged_teacher_action(privileged: np.ndarray, xy_step_m: float = 0.015) -> int:
-    """The scripted servo as a pure function of the privileged state (a DAgger teacher): move along
-    the larger horizontal error to the live object nearest the target, or descend only when both
-    are within half a step. Yaw is left alone, as in the bench servo."""
+def nearest_object_offset(privileged: np.ndarray) -> np.ndarray | None:
+    """(2,) the live object nearest the gripper target, minus the target (x, y), in units of
+    ``PRIVILEGED_SCALE_M``; None when no object is live. What the scripted servo steers on, and so
+    what a pixel student must see to imitate it (an auxiliary regression target)."""
     p = np.asarray(privileged, dtype=np.float64).reshape(-1)
     if p.shape != (len(PRIVILEGED_FIELDS),):
         raise ConfigError(
@@ -224,9 +224,19 @@ def privileged_teacher_action(privileged: np.ndarray, xy_step_m: float = 0.015) 
     slots = p[5:].reshape(MAX_SLOTS, 4)
     live = slots[slots[:, 0] > 0.5]
     if len(live) == 0:
+        return None
+    err = live[:, 1:3]
+    return np.asarray(err[int(np.argmin(np.einsum("ij,ij->i", err, err)))])
+
+
+def privileged_teacher_action(privileged: np.ndarray, xy_step_m: float = 0.015) -> int:
+    """The scripted servo as a pure function of the privileged state (a DAgger teacher): move along
+    the larger horizontal error to the live object nearest the target, or descend only when both
+    are within half a step. Yaw is left alone, as in the bench servo."""
+    offset = nearest_object_offset(privileged)
+    if offset is None:
         return 0
-    err = live[:, 1:3] * PRIVILEGED_SCALE_M
-    err = err[int(np.argmin(np.einsum("ij,ij->i", err, err)))]
+    err = offset * PRIVILEGED_SCALE_M
     if np.max(np.abs(err)) < 0.5 * xy_step_m:
         return 0
     axis = int(np.argmax(np.abs(err)))
@@ -754,5 +764,6 @@ __all__ = [
     "KukaGraspFastEnv",
     "action_space_for",
     "build_fast_mjcf",
+    "nearest_object_offset",
     "privileged_teacher_action",
 ]
