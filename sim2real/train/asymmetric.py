@@ -18,7 +18,7 @@ from typing import Any
 
 import gymnasium as gym
 import torch as th
-from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.policies import ActorCriticPolicy, BaseModel
 from stable_baselines3.common.preprocessing import get_flattened_obs_dim
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
@@ -55,6 +55,7 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
         action_space: gym.spaces.Space[Any],
         lr_schedule: Any,
         critic_net_arch: Sequence[int] = (256,),
+        aux_dim: int = 0,
         **kwargs: Any,
     ) -> None:
         if (
@@ -67,6 +68,9 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
                 f"{PRIVILEGED_KEY!r} keys, got {observation_space}"
             )
         self.critic_net_arch = tuple(int(n) for n in critic_net_arch)
+        if isinstance(aux_dim, bool) or not isinstance(aux_dim, int) or aux_dim < 0:
+            raise ConfigError(f"aux_dim must be an integer >= 0, got {aux_dim!r}")
+        self.aux_dim = aux_dim
         kwargs.setdefault("features_extractor_class", PixelActorExtractor)
         kwargs["share_features_extractor"] = False
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
@@ -78,12 +82,24 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
         self.vf_features_extractor = PrivilegedCriticExtractor(
             self.observation_space, self.features_dim, self.critic_net_arch
         )
+        # Training-only auxiliary regression from the actor's image features (distillation's
+        # teacher inputs); built before the optimizer so it trains, never exported.
+        self.aux_head: th.nn.Module | None = (
+            th.nn.Linear(self.features_dim, self.aux_dim) if self.aux_dim else None
+        )
         super()._build(lr_schedule)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data["critic_net_arch"] = self.critic_net_arch
+        data["aux_dim"] = self.aux_dim
         return data
+
+    def actor_features(self, obs: Any) -> th.Tensor:
+        """The actor's features alone (``extract_features`` would run the critic's too)."""
+        features = BaseModel.extract_features(self, obs, self.pi_features_extractor)
+        assert isinstance(features, th.Tensor)
+        return features
 
     def obs_to_tensor(self, observation: Any) -> tuple[Any, bool]:
         """A bare image (what evaluation and deployment have) is the actor's whole input."""

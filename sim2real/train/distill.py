@@ -11,7 +11,11 @@ evaluates and compares exactly like a PPO run. Each iteration:
    state distribution from the first iteration; the start distribution is the same for both);
 3. the labelled frames join an aggregated dataset (the newest ``dataset_size`` frames);
 4. ``gradient_steps`` minibatches from that dataset minimise the student's cross-entropy to the
-   teacher's action.
+   teacher's action, plus ``aux_coef`` times the squared error of an auxiliary head that regresses
+   the teacher's *inputs* (for Kuka: the nearest object's offset from the gripper target) from the
+   student's image features. One frame rarely pins down which of two good moves the teacher
+   picked, but always where the object is; the auxiliary target says so directly. The head is
+   training-only: it is not part of the exported actor.
 
 The aggregated dataset is not saved with a checkpoint: a resumed run starts a new one.
 """
@@ -19,6 +23,7 @@ The aggregated dataset is not saved with a checkpoint: a resumed run starts a ne
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,11 +42,31 @@ def _kuka_scripted(privileged: np.ndarray) -> int:
     return privileged_teacher_action(privileged)
 
 
-# Teacher name → privileged state vector → action. Module-level functions, so a model pickles.
-TEACHERS: dict[str, Callable[[np.ndarray], Any]] = {"kuka_scripted": _kuka_scripted}
+def _kuka_inputs(privileged: np.ndarray) -> np.ndarray:
+    """What the Kuka servo decides on, in 0.1 m units: the nearest object's offset from the
+    target (0 when none is live), the target's x, y and the episode's progress."""
+    from sim2real.envs.kuka_grasp import nearest_object_offset
+
+    p = np.asarray(privileged, dtype=np.float32).reshape(-1)
+    offset = nearest_object_offset(p)
+    near = np.zeros(2, np.float32) if offset is None else offset.astype(np.float32)
+    return np.concatenate((near, p[:2], p[4:5]))
 
 
-def get_teacher(name: str) -> Callable[[np.ndarray], Any]:
+@dataclass(frozen=True)
+class Teacher:
+    """A privileged teacher: its action, and the inputs it decides on (the auxiliary target)."""
+
+    action: Callable[[np.ndarray], Any]
+    inputs: Callable[[np.ndarray], np.ndarray]
+    n_inputs: int
+
+
+# Teacher name → teacher. Module-level functions, so a model pickles.
+TEACHERS: dict[str, Teacher] = {"kuka_scripted": Teacher(_kuka_scripted, _kuka_inputs, 5)}
+
+
+def get_teacher(name: str) -> Teacher:
     try:
         return TEACHERS[name]
     except KeyError:
@@ -66,6 +91,7 @@ class Distill(OnPolicyAlgorithm):
         batch_size: int = 256,
         gradient_steps: int = 16,
         dataset_size: int = 50_000,
+        aux_coef: float = 0.0,
         ent_coef: float = 0.0,
         max_grad_norm: float = 0.5,
         stats_window_size: int = 100,
@@ -76,7 +102,11 @@ class Distill(OnPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        get_teacher(teacher)  # unknown names fail before anything is built
+        spec = get_teacher(teacher)  # unknown names fail before anything is built
+        if isinstance(aux_coef, bool) or not isinstance(aux_coef, int | float) or aux_coef < 0:
+            raise ConfigError(f"distill aux_coef must be a number >= 0, got {aux_coef!r}")
+        if aux_coef:
+            policy_kwargs = {**(policy_kwargs or {}), "aux_dim": spec.n_inputs}
         for name, value in (
             ("n_steps", n_steps),
             ("batch_size", batch_size),
@@ -110,8 +140,10 @@ class Distill(OnPolicyAlgorithm):
         self.batch_size = batch_size
         self.gradient_steps = gradient_steps
         self.dataset_size = dataset_size
+        self.aux_coef = float(aux_coef)
         self._data: dict[str, np.ndarray] = {}
         self._labels = np.zeros(0, dtype=np.int64)
+        self._aux = np.zeros((0, spec.n_inputs), dtype=np.float32)
         self._data_pos = 0
         self._data_len = 0
         if _init_setup_model:
@@ -136,7 +168,7 @@ class Distill(OnPolicyAlgorithm):
         self._data_pos = self._data_len = 0
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_data", "_labels"]
+        return [*super()._excluded_save_params(), "_data", "_labels", "_aux"]
 
     def _aggregate(self) -> float:
         """Teacher labels for this rollout's states, into the dataset; returns how often the
@@ -146,7 +178,7 @@ class Distill(OnPolicyAlgorithm):
         assert isinstance(obs, dict)
         teacher = get_teacher(self.teacher)
         priv = obs[PRIVILEGED_KEY].reshape(-1, obs[PRIVILEGED_KEY].shape[-1])
-        labels = np.array([int(teacher(p)) for p in priv], dtype=np.int64)
+        labels = np.array([int(teacher.action(p)) for p in priv], dtype=np.int64)
         executed = buf.actions.reshape(-1).astype(np.int64)
         n = len(labels)
         if not self._data:
@@ -156,11 +188,15 @@ class Distill(OnPolicyAlgorithm):
                     shape = (self.dataset_size, *(space.shape or ()))
                     self._data[k] = np.zeros(shape, dtype=space.dtype)
             self._labels = np.zeros(self.dataset_size, dtype=np.int64)
+            if self.aux_coef:
+                self._aux = np.zeros((self.dataset_size, teacher.n_inputs), dtype=np.float32)
         idx = (self._data_pos + np.arange(n)) % self.dataset_size
         for k, store in self._data.items():
             flat = obs[k].reshape(n, *store.shape[1:])
             store[idx] = flat.astype(store.dtype)  # the rollout buffer keeps frames as float32
         self._labels[idx] = labels
+        if self.aux_coef:
+            self._aux[idx] = np.stack([teacher.inputs(p) for p in priv])
         self._data_pos = int((self._data_pos + n) % self.dataset_size)
         self._data_len = min(self._data_len + n, self.dataset_size)
         return float(np.mean(executed == labels))
@@ -169,16 +205,26 @@ class Distill(OnPolicyAlgorithm):
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         agreement = self._aggregate()
-        losses, entropies, accs = [], [], []
+        losses, entropies, accs, aux_losses = [], [], [], []
+        policy = self.policy
+        assert isinstance(policy, AsymmetricActorCriticPolicy)
         for _ in range(self.gradient_steps):
             idx = np.random.randint(0, self._data_len, size=min(self.batch_size, self._data_len))
             obs = {k: th.as_tensor(v[idx], device=self.device) for k, v in self._data.items()}
             target = th.as_tensor(self._labels[idx], device=self.device)
-            dist = self.policy.get_distribution(obs)
+            # get_distribution's own path, with the features kept for the auxiliary head.
+            features = policy.actor_features(obs)
+            latent = policy.mlp_extractor.forward_actor(features)
+            dist = policy._get_action_dist_from_latent(latent)
             ent = dist.entropy()
             assert ent is not None  # a categorical distribution has one
             entropy = ent.mean()
             loss = -dist.log_prob(target).mean() - self.ent_coef * entropy
+            if self.aux_coef and policy.aux_head is not None:
+                aux_target = th.as_tensor(self._aux[idx], device=self.device)
+                aux_loss = th.nn.functional.mse_loss(policy.aux_head(features), aux_target)
+                loss = loss + self.aux_coef * aux_loss
+                aux_losses.append(aux_loss.item())
             self.policy.optimizer.zero_grad()
             loss.backward()
             th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
@@ -194,5 +240,7 @@ class Distill(OnPolicyAlgorithm):
         log.record("train/teacher_agreement", agreement)
         log.record("train/batch_accuracy", float(np.mean(accs)))
         log.record("train/entropy", float(np.mean(entropies)))
+        if aux_losses:
+            log.record("train/aux_loss", float(np.mean(aux_losses)))
         log.record("train/dataset_size", self._data_len)
         log.record("train/n_updates", self._n_updates, exclude="tensorboard")

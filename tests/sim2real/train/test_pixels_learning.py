@@ -287,6 +287,63 @@ def test_distill_aggregate_stores_frames_with_the_teachers_labels(tmp_path: Path
     venv.close()
 
 
+def test_distill_auxiliary_head_regresses_the_teachers_inputs_and_stays_out_of_the_actor(
+    tmp_path: Path,
+) -> None:
+    from sim2real.envs.kuka_grasp import nearest_object_offset
+    from sim2real.train.factory import build_vec_env, transpose_images
+
+    venv = transpose_images(build_vec_env(KUKA, {"dr": "none"}, [0, 1], privileged=True))
+    th.manual_seed(0)
+    model = Distill(
+        "MultiInputPolicy",
+        venv,
+        n_steps=12,
+        dataset_size=24,
+        gradient_steps=1,
+        batch_size=24,
+        aux_coef=1.0,
+        seed=0,
+        device="cpu",
+    )
+    policy = model.policy
+    assert isinstance(policy, AsymmetricActorCriticPolicy) and policy.aux_head is not None
+    model.learn(24)  # one rollout of 2 envs x 12 steps fills the dataset exactly
+    buf = model.rollout_buffer.observations
+    assert isinstance(buf, dict)
+    priv = buf[PRIVILEGED_KEY].reshape(-1, 25)
+    for p, aux in zip(priv, model._aux, strict=True):
+        offset = nearest_object_offset(p)
+        assert offset is not None  # every episode has 1-5 objects
+        np.testing.assert_allclose(aux, [*offset, p[0], p[1], p[4]], rtol=1e-6)
+
+    # The head is in the optimizer: more updates on the same dataset fit its targets better.
+    def aux_mse() -> float:
+        obs = {k: th.as_tensor(v) for k, v in model._data.items()}
+        with th.no_grad():
+            assert policy.aux_head is not None
+            pred = policy.aux_head(policy.actor_features(obs))
+        return float(th.nn.functional.mse_loss(pred, th.as_tensor(model._aux)))
+
+    before = aux_mse()
+    model.gradient_steps = 40
+    model._aggregate = lambda: 0.0  # type: ignore[method-assign]  # train on the same frames
+    model.train()
+    assert aux_mse() < 0.5 * before
+
+    # Saved and loaded with its head; the exported actor has no trace of it.
+    model.save(tmp_path / "m.zip")
+    loaded = Distill.load(tmp_path / "m.zip", device="cpu")
+    assert loaded.policy.aux_dim == 5 and loaded.aux_coef == 1.0
+    actor = loaded.policy.actor_modules()
+    assert all(
+        m is not loaded.policy.aux_head
+        and not any(x is loaded.policy.aux_head for x in m.modules())
+        for m in actor.values()
+    )
+    venv.close()
+
+
 def test_distill_rejects_unknown_teachers_and_envs_without_privileged_state(tmp_path: Path) -> None:
     with pytest.raises(UnknownNameError, match="unknown teacher 'oracle'; valid: kuka_scripted"):
         resolve_config("kuka-fast", "distill", tmp_path / "a", overrides=["teacher=oracle"])
