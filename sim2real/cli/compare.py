@@ -36,6 +36,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="[ALGO:]KEY=VALUE",
         help="preset override for one algorithm (ppo:n_steps=128) or all (KEY=VALUE)",
     )
+    parser.add_argument(
+        "--preset",
+        action="append",
+        default=[],
+        metavar="ALGO:NAME",
+        help="train ALGO from preset NAME instead of its own (ppo:ppo_kuka_fast_asym)",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -88,7 +95,7 @@ def watch_runs(runs: Path, names: list[str], steps: int, enabled: bool) -> Itera
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim2real.compare.runner import CompareConfig, parse_overrides, run_compare
+    from sim2real.compare.runner import CompareConfig, parse_overrides, parse_presets, run_compare
     from sim2real.errors import ConfigError
 
     if not args.out:
@@ -106,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         address=args.address,
         eval_episodes=args.eval_episodes,
         overrides=parse_overrides(args.set, algos),
+        presets=parse_presets(args.preset),
     )
     names = [f"{a}-s{seed}" for a in algos for seed in range(args.seeds)]
     progress = not (args.json or args.no_progress)

@@ -27,6 +27,7 @@ class Job:
     run_dir: str
     eval_episodes: int
     overrides: tuple[str, ...] = ()
+    preset: str | None = None  # None: the algorithm's own preset for the env
     n_bins: int = 30
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -113,6 +114,7 @@ def run_job(job: Mapping[str, Any]) -> dict[str, Any]:
         seed=j.seed,
         steps=j.steps,
         overrides=j.overrides,
+        preset=j.preset,
         progress=False,
     )
     t0 = time.perf_counter()

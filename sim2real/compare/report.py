@@ -171,6 +171,14 @@ def _portable(job: Mapping[str, Any], out: Path) -> dict[str, Any]:
     return j
 
 
+def _presets_text(presets: dict[str, str]) -> str:
+    """Which hyperparameter presets the runs used, for the report's first paragraph."""
+    if not presets:
+        return "its shipped preset"
+    named = ", ".join(f"{a}: `{p}`" for a, p in sorted(presets.items()))
+    return f"its shipped preset ({named}; the others their own)"
+
+
 def write_report(
     out: Path,
     config: Mapping[str, Any],
@@ -202,9 +210,9 @@ def write_report(
         f"# Algorithm comparison: {config['env_id']}",
         "",
         f"Created {created} with backend `{config['backend']}`. Every (algorithm, seed) trained "
-        f"for {config['steps']} env steps under DR preset `{config['dr']}` with its shipped "
-        f"preset, then ran {config['eval_episodes']} deterministic episodes on held-out seeds "
-        "(the same seeds for every run).",
+        f"for {config['steps']} env steps under DR preset `{config['dr']}` with "
+        f"{_presets_text(config.get('presets') or {})}, then ran {config['eval_episodes']} "
+        "deterministic episodes on held-out seeds (the same seeds for every run).",
         "",
         "## Final success (held-out episodes)",
         "",

@@ -23,6 +23,7 @@ class CompareConfig:
     address: str | None = None
     eval_episodes: int = 100
     overrides: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # algo → KEY=VALUE
+    presets: Mapping[str, str] = field(default_factory=dict)  # algo → preset name (else its own)
 
     def __post_init__(self) -> None:
         import sim2real.envs as envs
@@ -48,9 +49,14 @@ class CompareConfig:
         if self.backend not in BACKENDS:
             raise UnknownNameError("backend", self.backend, BACKENDS)
         load_preset(self.dr)
-        unknown = sorted(set(self.overrides) - set(names))
-        if unknown:
-            raise ConfigError(f"--set names algorithm(s) {unknown} that are not in --algos")
+        for flag, given in (("--set", self.overrides), ("--preset", self.presets)):
+            unknown = sorted(set(given) - set(names))
+            if unknown:
+                raise ConfigError(f"{flag} names algorithm(s) {unknown} that are not in --algos")
+        from sim2real.train.config import find_preset
+
+        for algo, preset in self.presets.items():
+            find_preset(algo, self.env, preset)  # unknown names fail here, before any run
 
 
 def parse_overrides(items: list[str], algos: tuple[str, ...]) -> dict[str, tuple[str, ...]]:
@@ -64,6 +70,17 @@ def parse_overrides(items: list[str], algos: tuple[str, ...]) -> dict[str, tuple
             for a in algos:
                 out.setdefault(a, []).append(item)
     return {k: tuple(v) for k, v in out.items()}
+
+
+def parse_presets(items: list[str]) -> dict[str, str]:
+    """``ALGO:NAME`` per item: the algorithm trains from that preset instead of its own."""
+    out: dict[str, str] = {}
+    for item in items:
+        algo, sep, name = item.partition(":")
+        if not sep or not algo or not name:
+            raise ConfigError(f"--preset {item!r} must be ALGO:NAME, e.g. ppo:ppo_kuka_fast_asym")
+        out[algo.strip().lower()] = name.strip()
+    return out
 
 
 def jobs_for(cfg: CompareConfig) -> list[dict[str, Any]]:
@@ -80,6 +97,7 @@ def jobs_for(cfg: CompareConfig) -> list[dict[str, Any]]:
             run_dir=str(runs / f"{algo}-s{seed}"),
             eval_episodes=cfg.eval_episodes,
             overrides=tuple(cfg.overrides.get(algo, ())),
+            preset=cfg.presets.get(algo),
         ).to_dict()
         for algo in cfg.algos
         for seed in range(cfg.seeds)
@@ -108,6 +126,7 @@ def run_compare(cfg: CompareConfig) -> dict[str, Path]:
             seed=j["seed"],
             steps=j["steps"],
             overrides=j["overrides"],
+            preset=j["preset"],
         )
     results = BACKENDS[cfg.backend](jobs, cfg.workers, cfg.address)
     config = {
@@ -120,5 +139,6 @@ def run_compare(cfg: CompareConfig) -> dict[str, Path]:
         "workers": cfg.workers,
         "eval_episodes": cfg.eval_episodes,
         "overrides": {k: list(v) for k, v in cfg.overrides.items()},
+        "presets": dict(cfg.presets),
     }
     return write_report(out, config, results, versions())

@@ -11,7 +11,7 @@ import pytest
 from sim2real.compare import CompareConfig, run_compare
 from sim2real.compare.jobs import run_job
 from sim2real.compare.report import summarise
-from sim2real.compare.runner import jobs_for, parse_overrides
+from sim2real.compare.runner import jobs_for, parse_overrides, parse_presets
 from sim2real.errors import ConfigError, RunDirError, Sim2RealError
 
 TINY = {
@@ -56,6 +56,7 @@ def test_local_backend_writes_every_file(tmp_path: Path) -> None:
         workers=2,
         eval_episodes=4,
         overrides=TINY,
+        presets={"ppo": "ppo_default"},  # instead of reach's own ppo_reach
     )
     files = run_compare(cfg)
     out = tmp_path / "rep"
@@ -79,6 +80,10 @@ def test_local_backend_writes_every_file(tmp_path: Path) -> None:
     report = files["report"].read_text()
     for a in algos:
         assert f"| {a} | 2 |" in report and f"diagnostics_{a}.png" in report
+    assert "ppo: `ppo_default`" in report and results["config"]["presets"] == {"ppo": "ppo_default"}
+    for a, preset in (("ppo", "ppo_default"), ("dqn", "dqn_reach")):
+        train_cfg = json.loads((out / "runs" / f"{a}-s0" / "config.json").read_text())["train"]
+        assert train_cfg["preset"] == preset
     with pytest.raises(RunDirError, match="already holds runs"):
         run_compare(cfg)
 
@@ -148,6 +153,20 @@ def test_bad_grids_fail_before_any_training(tmp_path: Path) -> None:
         CompareConfig(
             env="reach", algos=("ppo",), seeds=1, steps=10, out=out, overrides={"sac": ("tau=0.1",)}
         )
+    with pytest.raises(ConfigError, match=r"--preset names algorithm\(s\) \['dqn'\]"):
+        CompareConfig(
+            env="reach", algos=("ppo",), seeds=1, steps=10, out=out, presets={"dqn": "dqn_reach"}
+        )
+    with pytest.raises(Sim2RealError, match="unknown preset 'ppo_fast'"):
+        CompareConfig(
+            env="reach", algos=("ppo",), seeds=1, steps=10, out=out, presets={"ppo": "ppo_fast"}
+        )
+    with pytest.raises(ConfigError, match="--preset 'ppo_reach' must be ALGO:NAME"):
+        parse_presets(["ppo_reach"])
+    assert parse_presets(["PPO:ppo_default", "dqn:dqn_reach"]) == {
+        "ppo": "ppo_default",
+        "dqn": "dqn_reach",
+    }
     assert parse_overrides(["ppo:n_steps=64", "gamma=0.9"], ("ppo", "a2c")) == {
         "ppo": ("n_steps=64", "gamma=0.9"),
         "a2c": ("gamma=0.9",),
