@@ -114,6 +114,13 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-episodes", type=int, default=200)
     parser.add_argument("--results-dir", type=Path, default=Path(".cache/bench/robosuite_train"))
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="preset override, as sim2real train's (vec_env=dummy: one core per run)",
+    )
     args = parser.parse_args()
 
     env_id = ENVS[args.env]
@@ -135,7 +142,7 @@ def main() -> None:
             seed=args.seed,
             progress=False,
             max_wall_s=60.0 * args.minutes,
-            overrides=[f"env_kwargs.robot={args.robot}"],
+            overrides=[f"env_kwargs.robot={args.robot}", *args.set],
         )
         result = train(cfg)
     train_min = (time.perf_counter() - t0) / 60.0

@@ -59,3 +59,27 @@ def test_short_sac_run_on_lift_saves_loads_and_evaluates(tmp_path: Path) -> None
             assert 0.0 <= ret <= 40.0  # robosuite's shaped Lift reward lies in [0, 1] per step
     finally:
         eval_env.close()
+
+
+def test_shipped_reach_preset_trains_in_worker_processes_resumes_and_evaluates(
+    tmp_path: Path,
+) -> None:
+    """The robosuite presets step their envs in subprocesses (bench/robosuite_vec_env.py): the
+    runner's whole path, resume included, works with robosuite in the workers."""
+    from sim2real.evaluate import EvalTarget, evaluate
+    from sim2real.train import resolve_config, resume, train
+
+    run = tmp_path / "run"
+    cfg = resolve_config(
+        "robosuite-reach",
+        "ppo",
+        run,
+        steps=128,
+        progress=False,
+        overrides=["n_envs=2", "n_steps=64", "batch_size=64", "n_epochs=1"],
+    )
+    assert cfg.preset == "ppo_robosuite_reach" and cfg.vec_env == "subproc"
+    assert train(cfg).steps_done == 128
+    assert resume(run, steps=256, progress=False).steps_done == 256
+    result = evaluate(EvalTarget.load(run), episodes=2, dr="none", n_parallel=2)
+    assert result["episodes"] == 2 and result["env_id"] == "Sim2Real/RobosuiteReach-v0"
