@@ -157,7 +157,7 @@ def main() -> None:
                 "teacher_label_val_accuracy",
                 acc,
                 step=step,
-                train_loss=round(float(loss), 4),
+                train_loss=round(loss.item(), 4),
                 wall_s=round(time.perf_counter() - t0, 1),
                 **common,
             )

@@ -124,7 +124,7 @@ def test_wrapped_cnn_gets_sb3s_cnn_heads_and_the_student_fits_the_teacher() -> N
         loss().backward()
         th.nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
         policy.optimizer.step()
-    assert float(loss()) < 0.5 * marginal_nats  # the frames say which move the teacher made
+    assert loss().item() < 0.5 * marginal_nats  # the frames say which move the teacher made
 
 
 # ---- random shift ------------------------------------------------------------------------------
