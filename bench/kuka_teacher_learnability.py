@@ -40,18 +40,11 @@ import torch as th
 import sim2real.envs as envs
 from sim2real.envs import kuka_grasp as kg
 from sim2real.evaluate.stats import wilson_interval
+from sim2real.train.distill import get_teacher
 from sim2real.train.extractors import FEATURE_EXTRACTORS, get_extractor
 
-N_AUX = 5  # nearest offset (x, y), target (x, y), episode fraction
+TEACHER = get_teacher("kuka_scripted")  # its inputs are the auxiliary target, as in distill
 HELD_OUT_SEED = 900_000_000  # far from the collection seeds
-
-
-def aux_target(privileged: np.ndarray) -> np.ndarray:
-    """The teacher's inputs: (nearest offset x, y; target x, y; progress), 0.1 m units."""
-    offset = kg.nearest_object_offset(privileged)
-    p = np.asarray(privileged, dtype=np.float32)
-    near = np.zeros(2, np.float32) if offset is None else offset.astype(np.float32)
-    return np.concatenate((near, p[:2], p[4:5]))
 
 
 def emit(metric: str, value: float, **extra: object) -> None:
@@ -74,10 +67,11 @@ def collect(
             episode += 1
             done = False
             while not done:
-                label = kg.privileged_teacher_action(info[kg.PRIVILEGED_INFO_KEY])
+                privileged = info[kg.PRIVILEGED_INFO_KEY]
+                label = TEACHER.action(privileged)
                 frames.append(obs.transpose(2, 0, 1))
                 labels.append(label)
-                aux.append(aux_target(info[kg.PRIVILEGED_INFO_KEY]))
+                aux.append(TEACHER.inputs(privileged))
                 action = label if rng.random() < teacher_prob else int(rng.integers(7))
                 obs, _, done, _, info = env.step(action)
     finally:
@@ -136,7 +130,7 @@ def main() -> None:
     space = gym.spaces.Box(0, 255, x.shape[1:], np.uint8)
     cnn = get_extractor(args.extractor)(space)
     # One linear layer gives the 7 action logits and the auxiliary regression side by side.
-    model = th.nn.Sequential(cnn, th.nn.Linear(cnn.features_dim, 7 + N_AUX))
+    model = th.nn.Sequential(cnn, th.nn.Linear(cnn.features_dim, 7 + TEACHER.n_inputs))
     opt = th.optim.Adam(model.parameters(), lr=args.lr)
     xt, yt, zt = th.as_tensor(x), th.as_tensor(y), th.as_tensor(z)
     gen = th.Generator().manual_seed(args.seed)

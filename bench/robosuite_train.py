@@ -32,6 +32,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from support.load import emit
 
+from s2r_common.atomic import atomic_write_text
 from sim2real.evaluate import EvalTarget, evaluate
 from sim2real.train import resolve_config, resume, train
 
@@ -158,7 +159,7 @@ def main() -> None:
             "load_1min": [load, round(os.getloadavg()[0], 2)],
         }
     )
-    seg_path.write_text(json.dumps(segments, indent=1))
+    atomic_write_text(seg_path, json.dumps(segments, indent=1))  # --resume reads it back
     points = curve(run, segments)
     (run / "curve.jsonl").write_text("".join(json.dumps(p) + "\n" for p in points))
     total_min = sum(s["minutes"] for s in segments)

@@ -226,7 +226,7 @@ def nearest_object_offset(privileged: np.ndarray) -> np.ndarray | None:
     if len(live) == 0:
         return None
     err = live[:, 1:3]
-    return np.asarray(err[int(np.argmin(np.einsum("ij,ij->i", err, err)))])
+    return err[int(np.argmin(np.einsum("ij,ij->i", err, err)))]
 
 
 def privileged_teacher_action(privileged: np.ndarray, xy_step_m: float = 0.015) -> int:
