@@ -1,8 +1,11 @@
 """Ship a measured policy: export a run to ONNX (parity-checked) into ``sim2real/policies/``,
 measure its held-out success in its env (DR ``default`` and ``none``, Wilson intervals) and
-write its card. ``sim2real policies`` lists what is shipped; every command takes the name.
+write its card. Parity is checked on 1,000 observations from the run's env (for a pixel policy,
+rendered frames); a discrete policy (Kuka's 7 actions) must choose the torch policy's action on
+every one, and its card records the largest logit (DQN: Q-value) difference too. ``sim2real policies`` lists what is shipped; every command takes the name.
 
     .venv/bin/python bench/ship_policies.py RUN_DIR NAME --summary "what it is for" [--checkpoint]
+        [--task NAME]  (envs without a task name, e.g. Kuka's: ``--task grasp``)
 
 ``--checkpoint`` also ships the run's final SB3 model as ``<name>.zip`` (actor, critic,
 optimiser) and ``<name>.train.json`` (the run's config and its observation-normalisation
@@ -65,7 +68,7 @@ def main() -> None:
 
     from hardware.atomic import atomic_write_bytes
     from sim2real.evaluate import EvalTarget, evaluate
-    from sim2real.evaluate.parity import parity_check
+    from sim2real.evaluate.parity import check_parity, parity_check
     from sim2real.export.exporter import export_policy
     from sim2real.policies import SHIPPED_DIR
 
@@ -74,6 +77,7 @@ def main() -> None:
     p.add_argument("run")
     p.add_argument("name")
     p.add_argument("--summary", default="")
+    p.add_argument("--task", help="the card's task (default: the env's own, e.g. reach)")
     p.add_argument("--episodes", type=int, default=200)
     p.add_argument("--checkpoint", action="store_true", help="also ship the SB3 checkpoint")
     p.add_argument(
@@ -92,8 +96,18 @@ def main() -> None:
         atomic_write_bytes(card_path, (json.dumps(card, indent=2) + "\n").encode())
         return
     export_policy(a.run, "onnx", out)
-    diff = parity_check(a.run, out, 1000)
+    parity = check_parity(a.run, out, 1000)
+    diff = parity.max_abs_action_diff
     emit("parity_max_abs_action_diff", diff, "1", name=a.name)
+    if parity.max_abs_score_diff is not None:  # discrete: the actions agreed on every frame
+        emit(
+            "parity_max_abs_score_diff",
+            parity.max_abs_score_diff,
+            "logit or Q",
+            name=a.name,
+            observations=parity.observations,
+            action_disagreements=parity.action_disagreements,
+        )
     target = EvalTarget.load(out)
     figures: dict[str, object] = {}
     for dr in ("default", "none"):
@@ -111,7 +125,7 @@ def main() -> None:
     config = json.loads((Path(a.run) / "config.json").read_text())
     card = {
         "file": out.name,
-        "task": str(gym.spec(target.env_id).kwargs.get("task", "")),
+        "task": a.task or str(gym.spec(target.env_id).kwargs.get("task", "")),
         "env_id": target.env_id,
         "algo": config["algo"],
         "summary": a.summary,
@@ -123,6 +137,11 @@ def main() -> None:
             "measured": dt.date.today().isoformat(),
             "machine": f"{platform.machine()} {os.cpu_count()} cpu",
             "parity_max_abs_action_diff": diff,
+            **(
+                {}
+                if parity.max_abs_score_diff is None
+                else {"parity_max_abs_score_diff": parity.max_abs_score_diff}
+            ),
         },
     }
     if a.checkpoint:

@@ -21,7 +21,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sim2real.errors import ConfigError
-    from sim2real.evaluate.parity import parity_check
+    from sim2real.evaluate.parity import check_parity
     from sim2real.export.exporter import export_policy
     from sim2real.export.formats import get_format
 
@@ -34,9 +34,8 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or f"{args.run.rstrip('/')}/policy{suffix}"
     path = export_policy(args.run, args.format, out)
     summary: dict[str, object] = {"out": str(path), "format": args.format}
-    if args.check:
-        summary["max_abs_action_diff"] = parity_check(args.run, path, args.check)
-        summary["observations"] = args.check
+    if args.check:  # discrete policies add action disagreements and the largest score diff
+        summary.update(check_parity(args.run, path, args.check).to_dict())
     if args.json:
         print(json.dumps(summary))
     else:

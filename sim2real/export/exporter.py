@@ -1,23 +1,27 @@
-"""SB3 policy → op program → ``.onnx`` or ``.npz``; one extractor per SB3 policy family."""
+"""SB3 policy → op program → ``.onnx`` or ``.npz``; one extractor per SB3 policy family, one
+translation per feature extractor (flattened state, NatureCNN, the keypoint CNN, the pixel actor)
+and one action head per action space (Box: clip or unscale; Discrete: argmax)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.torch_layers import CombinedExtractor, FlattenExtractor
+from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.torch_layers import CombinedExtractor, FlattenExtractor, NatureCNN
 from stable_baselines3.dqn.policies import DQNPolicy
 from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 
 from sim2real.export.formats import FORMATS, get_format, load_run_dir
 from sim2real.export.policy import PolicyError
-from sim2real.export.program import Op
+from sim2real.export.program import IMAGE_LAYOUTS, Op
 from sim2real.export.torch_policy import TorchPolicy
 
 __all__ = ["FORMATS", "build_program", "export_policy", "export_trained"]
@@ -28,12 +32,14 @@ def _np(t: th.Tensor) -> np.ndarray:
 
 
 def _layers(module: th.nn.Module) -> list[Op]:
-    """Linear layers and activations of a (nested) Sequential, in order."""
+    """Linear and convolution layers and activations of a (nested) Sequential, in order."""
     if isinstance(module, th.nn.Sequential):
         return [op for child in module for op in _layers(child)]
     if isinstance(module, th.nn.Linear):
         bias = module.bias if module.bias is not None else th.zeros(module.out_features)
         return [{"op": "dense", "weight": _np(module.weight), "bias": _np(bias)}]
+    if isinstance(module, th.nn.Conv2d):
+        return [_conv2d(module)]
     if isinstance(module, th.nn.ReLU):
         return [{"op": "act", "fn": "relu"}]
     if isinstance(module, th.nn.Tanh):
@@ -42,23 +48,138 @@ def _layers(module: th.nn.Module) -> list[Op]:
         return [{"op": "act", "fn": "elu", "alpha": float(module.alpha)}]
     if isinstance(module, th.nn.LeakyReLU):
         return [{"op": "act", "fn": "leaky_relu", "alpha": float(module.negative_slope)}]
-    if isinstance(module, th.nn.Flatten | th.nn.Identity):
+    if isinstance(module, th.nn.Flatten):
+        if (module.start_dim, module.end_dim) != (1, -1):
+            raise PolicyError(f"cannot export {module}: only Flatten(1, -1)")
+        return [{"op": "flatten"}]
+    if isinstance(module, th.nn.Identity):
         return []
-    raise PolicyError(f"cannot export layer {type(module).__name__}: MLP layers only")
-
-
-def _check_extractor(extractor: th.nn.Module) -> None:
-    ok = isinstance(extractor, FlattenExtractor) or (
-        isinstance(extractor, CombinedExtractor)
-        and all(isinstance(m, th.nn.Flatten) for m in extractor.extractors.values())
+    raise PolicyError(
+        f"cannot export layer {type(module).__name__}: Linear, Conv2d, Flatten and activations only"
     )
-    if not ok:
+
+
+def _conv2d(m: th.nn.Conv2d) -> Op:
+    padding = m.padding
+    if (
+        isinstance(padding, str)
+        or m.padding_mode != "zeros"
+        or m.groups != 1
+        or tuple(m.dilation) != (1, 1)
+    ):
+        raise PolicyError(f"cannot export {m}: only integer zero padding, groups 1 and dilation 1")
+    bias = m.bias if m.bias is not None else th.zeros(m.out_channels)
+    return {
+        "op": "conv2d",
+        "weight": _np(m.weight),
+        "bias": _np(bias),
+        "stride": [int(v) for v in m.stride],
+        "padding": [int(v) for v in padding],
+    }
+
+
+# ---- feature extractors: observation → features ---------------------------------------------
+@dataclass(frozen=True)
+class Pixels:
+    """The exported program's input (the flat observation of ``obs_shape``) and SB3's image
+    preprocessing: channels-last frames are transposed, uint8 values divided by 255."""
+
+    obs_shape: tuple[int, ...]
+    divisor: float
+
+    def image_op(self, space: Any) -> Op:
+        """The ``image`` op that turns the observation into the (C, H, W) image ``space``."""
+        c, h, w = (int(n) for n in space.shape)
+        for name, layout in IMAGE_LAYOUTS.items():
+            if layout.shape((c, h, w)) == self.obs_shape:
+                return {"op": "image", "layout": name, "shape": [c, h, w], "divisor": self.divisor}
         raise PolicyError(
-            f"export supports MLP policies on state or goal observations; this policy uses a "
-            f"{type(extractor).__name__} feature extractor (pixels): load its run dir instead"
+            f"the policy's observation shape {self.obs_shape} is not the {(c, h, w)} image its "
+            "CNN reads, channels first or last"
         )
 
 
+FeatureOps = Callable[[Any, Pixels], list[Op]]
+
+
+def _flatten_extractor(m: FlattenExtractor, pixels: Pixels) -> list[Op]:
+    if is_image_space(m._observation_space):  # an MLP on pixels: SB3 still scales them
+        return [pixels.image_op(m._observation_space), {"op": "flatten"}]
+    return []  # the program's input is the flat observation already
+
+
+def _combined(m: CombinedExtractor, pixels: Pixels) -> list[Op]:
+    others = sorted(k for k, e in m.extractors.items() if not isinstance(e, th.nn.Flatten))
+    if others:
+        raise PolicyError(
+            f"cannot export a CombinedExtractor whose keys {others} are not flattened (an image "
+            "beside other keys): train the actor with a pixel extractor on the image alone"
+        )
+    return []
+
+
+def _nature_cnn(m: NatureCNN, pixels: Pixels) -> list[Op]:
+    return [pixels.image_op(m._observation_space), *_layers(m.cnn), *_layers(m.linear)]
+
+
+def _keypoint_cnn(m: Any, pixels: Pixels) -> list[Op]:
+    """``sim2real.train.extractors.KeypointCNN.forward``, op by op."""
+    return [
+        pixels.image_op(m._observation_space),
+        {"op": "coord_concat", "coords": _np(m.coords)},
+        *_layers(m.convs),
+        {
+            "op": "keypoints",
+            "map_coords": _np(m.map_coords),
+            # torch's own exp: numpy and ONNX divide by the very float32 the policy does
+            "temperature": _np(th.exp(m.log_temperature)),
+        },
+        *_layers(m.head),
+    ]
+
+
+def _pixel_actor(m: Any, pixels: Pixels) -> list[Op]:
+    """``sim2real.train.augment.PixelActorExtractor``: its CNN alone (the random shift runs only
+    in training mode), when the image is the whole observation."""
+    if m.extra_keys:
+        raise PolicyError(
+            f"cannot export a pixel actor that also reads {list(m.extra_keys)} beside the image: "
+            "the exported program takes the image alone; load its run dir instead"
+        )
+    return _features(m.cnn, pixels)
+
+
+def _qualname(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+# Extractor class (exact, by qualified name: two live in ``sim2real.train``, which this package
+# never imports) → its ops. A subclass is not matched: its forward may differ.
+FEATURES: dict[str, FeatureOps] = {
+    _qualname(FlattenExtractor): _flatten_extractor,
+    _qualname(CombinedExtractor): _combined,
+    _qualname(NatureCNN): _nature_cnn,
+    "sim2real.train.extractors.KeypointCNN": _keypoint_cnn,
+    "sim2real.train.augment.PixelActorExtractor": _pixel_actor,
+}
+
+
+def _features(extractor: th.nn.Module, pixels: Pixels) -> list[Op]:
+    translate = FEATURES.get(_qualname(type(extractor)))
+    if translate is None:
+        names = sorted(k.rsplit(".", 1)[-1] for k in FEATURES)
+        raise PolicyError(
+            f"cannot export a {type(extractor).__name__} feature extractor; exportable: {names}"
+        )
+    return translate(extractor, pixels)
+
+
+def _extract(policy: Any, extractor: th.nn.Module, tp: TorchPolicy) -> list[Op]:
+    divisor = 255.0 if policy.normalize_images else 1.0
+    return _features(extractor, Pixels(tuple(tp.meta.obs_shape), divisor))
+
+
+# ---- action heads: features → the env's action ----------------------------------------------
 def _unscale(space: Any) -> Op:
     low, high = space.low.astype(np.float64), space.high.astype(np.float64)
     return {
@@ -68,37 +189,60 @@ def _unscale(space: Any) -> Op:
     }
 
 
-def _actor_critic(p: ActorCriticPolicy, tp: TorchPolicy) -> list[Op]:
-    _check_extractor(p.pi_features_extractor)
-    if p.use_sde:
-        raise PolicyError("export does not support gSDE policies")
-    ops = _layers(p.mlp_extractor.policy_net) + _layers(p.action_net)
+def _box_head(p: ActorCriticPolicy) -> list[Op]:
     space: Any = p.action_space
     if p.squash_output:
-        return [*ops, {"op": "act", "fn": "tanh"}, _unscale(space)]
+        return [{"op": "act", "fn": "tanh"}, _unscale(space)]
     low, high = space.low.astype(np.float32), space.high.astype(np.float32)
-    return [*ops, {"op": "clip", "low": low, "high": high}]
+    return [{"op": "clip", "low": low, "high": high}]
+
+
+def _discrete_head(p: ActorCriticPolicy) -> list[Op]:
+    return [{"op": "argmax"}]  # the deterministic action: the mode of the categorical
+
+
+# Action space type → the ops after ``action_net`` (the mean or the logits).
+ACTION_HEADS: dict[type, Callable[[ActorCriticPolicy], list[Op]]] = {
+    spaces.Box: _box_head,
+    spaces.Discrete: _discrete_head,
+}
+
+
+def _actor_critic(p: ActorCriticPolicy, tp: TorchPolicy) -> list[Op]:
+    if p.use_sde:
+        raise PolicyError("export does not support gSDE policies")
+    head = ACTION_HEADS.get(type(p.action_space))
+    if head is None:
+        raise PolicyError(
+            f"cannot export a {type(p.action_space).__name__} action space; exportable: "
+            f"{sorted(t.__name__ for t in ACTION_HEADS)}"
+        )
+    ops = _extract(p, p.pi_features_extractor, tp)
+    ops += _layers(p.mlp_extractor.policy_net) + _layers(p.action_net)
+    return ops + head(p)
 
 
 def _td3(p: TD3Policy, tp: TorchPolicy) -> list[Op]:
-    _check_extractor(p.actor.features_extractor)
-    return [*_layers(p.actor.mu), _unscale(p.action_space)]
+    ops = _extract(p, p.actor.features_extractor, tp)
+    return [*ops, *_layers(p.actor.mu), _unscale(p.action_space)]
 
 
 def _sac(p: SACPolicy, tp: TorchPolicy) -> list[Op]:
     actor = p.actor
-    _check_extractor(actor.features_extractor)
     if actor.use_sde:
         raise PolicyError("export does not support gSDE policies")
-    ops = _layers(actor.latent_pi) + _layers(actor.mu)
+    ops = _extract(p, actor.features_extractor, tp)
+    ops += _layers(actor.latent_pi) + _layers(actor.mu)
     return [*ops, {"op": "act", "fn": "tanh"}, _unscale(p.action_space)]
 
 
 def _dqn(p: DQNPolicy, tp: TorchPolicy) -> list[Op]:
-    _check_extractor(p.q_net.features_extractor)
-    if tp.table is None:
-        raise PolicyError("a DQN run dir must hold its action_table in config.json")
-    return [*_layers(p.q_net.q_net), {"op": "argmax_table", "table": tp.table}]
+    ops = _extract(p, p.q_net.features_extractor, tp) + _layers(p.q_net.q_net)
+    if tp.table is not None:  # a Box env: Q-values index the run's action table
+        return [*ops, {"op": "argmax_table", "table": tp.table}]
+    if isinstance(p.action_space, spaces.Discrete):  # the env's own discrete actions
+        return [*ops, {"op": "argmax"}]
+    raise PolicyError("a DQN run dir on a Box env must hold its action_table in config.json")
 
 
 # Order matters: SACPolicy/TD3Policy/DQNPolicy are not ActorCriticPolicy, but keep it explicit.

@@ -2,7 +2,8 @@
 
 The graph is built node by node from the same op list the numpy policy runs, so both exports
 compute the same function; normalisation runs in float64 as VecNormalize does. The metadata JSON
-rides in the model's ``metadata_props``.
+rides in the model's ``metadata_props``. A program that ends in an argmax also outputs the
+per-action scores it reads (``scores``), so parity checks can compare logits, not only actions.
 """
 
 from __future__ import annotations
@@ -15,12 +16,12 @@ import numpy as np
 
 from hardware.atomic import atomic_write_bytes
 from sim2real.export.policy import Policy, PolicyError, PolicyMeta, meta_from_json
-from sim2real.export.program import Op, validate_program
+from sim2real.export.program import IMAGE_LAYOUTS, Op, score_program, validate_program
 
 OPSET = 17
 IR_VERSION = 8  # onnxruntime >= 1.10 reads it: old builds on a Raspberry Pi too
 META_KEY = "sim2real_meta"
-INPUT, OUTPUT = "obs", "action"
+INPUT, OUTPUT, SCORES = "obs", "action", "scores"
 
 
 class _GraphBuilder:
@@ -94,6 +95,64 @@ def _argmax_table(g: _GraphBuilder, x: str, op: Op) -> str:
     return g.node("Gather", [g.const("table", op["table"].astype(np.float32)), idx], "gather")
 
 
+def _image(g: _GraphBuilder, x: str, op: Op) -> str:
+    layout = IMAGE_LAYOUTS[op["layout"]]
+    c, h, w = (int(n) for n in op["shape"])
+    shape = g.const("image_shape", np.array([-1, *layout.shape((c, h, w))], np.int64))
+    y = g.node("Reshape", [x, shape], "pixels")
+    if layout.perm != (0, 1, 2, 3):
+        y = g.node("Transpose", [y], "nchw", perm=list(layout.perm))
+    return g.node("Div", [y, g.const("divisor", np.array(op["divisor"], np.float32))], "scaled")
+
+
+def _conv2d(g: _GraphBuilder, x: str, op: Op) -> str:
+    weight = op["weight"].astype(np.float32)
+    ph, pw = (int(v) for v in op["padding"])
+    return g.node(
+        "Conv",
+        [x, g.const("W", weight), g.const("b", op["bias"].astype(np.float32))],
+        "conv",
+        kernel_shape=list(weight.shape[2:]),
+        strides=[int(v) for v in op["stride"]],
+        pads=[ph, pw, ph, pw],
+    )
+
+
+def _coord_concat(g: _GraphBuilder, x: str, op: Op) -> str:
+    coords = op["coords"].astype(np.float32)
+    batch = g.node("Shape", [x], "batch", start=0, end=1)
+    shape = g.node(
+        "Concat", [batch, g.const("coord_dims", np.array(coords.shape, np.int64))], "shape", axis=0
+    )
+    tiled = g.node("Expand", [g.const("coords", coords[None]), shape], "coords")
+    return g.node("Concat", [x, tiled], "coordconv", axis=1)
+
+
+def _keypoints(g: _GraphBuilder, x: str, op: Op) -> str:
+    fmap = g.node("Reshape", [x, g.const("maps", np.array([0, 0, -1], np.int64))], "maps")
+    t = g.const("temperature", np.asarray(op["temperature"], np.float32))
+    attn = g.node("Softmax", [g.node("Div", [fmap, t], "tempered")], "attention", axis=2)
+    coords_t = g.const("map_coords_t", np.ascontiguousarray(op["map_coords"].T, np.float32))
+    points = g.node("MatMul", [attn, coords_t], "points")  # (n, C, 2)
+    flat = g.const("flat", np.array([0, -1], np.int64))
+    points = g.node("Reshape", [points, flat], "keypoints")
+    presence = g.node(
+        "ReduceMax", [g.node("Relu", [fmap], "relu")], "presence", axes=[2], keepdims=0
+    )
+    return g.node("Concat", [points, presence], "features", axis=1)
+
+
+def _flatten(g: _GraphBuilder, x: str, op: Op) -> str:
+    return g.node("Flatten", [x], "flatten", axis=1)
+
+
+def _argmax(g: _GraphBuilder, x: str, op: Op) -> str:
+    from onnx import TensorProto
+
+    idx = g.node("ArgMax", [x], "argmax", axis=1, keepdims=1)
+    return g.node("Cast", [idx], "index", to=TensorProto.FLOAT)
+
+
 ONNX_OPS: dict[str, Callable[[_GraphBuilder, str, Op], str]] = {
     "normalize": _normalize,
     "dense": _dense,
@@ -101,6 +160,12 @@ ONNX_OPS: dict[str, Callable[[_GraphBuilder, str, Op], str]] = {
     "clip": _clip,
     "affine": _affine,
     "argmax_table": _argmax_table,
+    "image": _image,
+    "conv2d": _conv2d,
+    "coord_concat": _coord_concat,
+    "keypoints": _keypoints,
+    "flatten": _flatten,
+    "argmax": _argmax,
 }
 
 
@@ -111,14 +176,20 @@ def save_onnx(path: str | Path, program: list[Op], meta: PolicyMeta) -> Path:
     validate_program(program, meta.source)
     g = _GraphBuilder()
     x = INPUT
-    for op in program:
+    scoring = score_program(program)
+    scores_at = -1 if scoring is None else len(scoring)
+    outputs = [helper.make_tensor_value_info(OUTPUT, TensorProto.FLOAT, ["batch", meta.action_dim])]
+    for i, op in enumerate(program):
+        if i == scores_at:  # the scores the final argmax reads
+            g.nodes.append(helper.make_node("Identity", [x], [SCORES], name=SCORES))
+            outputs.append(helper.make_tensor_value_info(SCORES, TensorProto.FLOAT, ["batch", "n"]))
         x = ONNX_OPS[op["op"]](g, x, op)
     g.nodes.append(helper.make_node("Identity", [x], [OUTPUT], name=OUTPUT))
     graph = helper.make_graph(
         g.nodes,
         "sim2real_policy",
         [helper.make_tensor_value_info(INPUT, TensorProto.FLOAT, ["batch", meta.flat_obs_dim])],
-        [helper.make_tensor_value_info(OUTPUT, TensorProto.FLOAT, ["batch", meta.action_dim])],
+        outputs,
         initializer=g.initializers,
     )
     model = helper.make_model(
@@ -151,6 +222,7 @@ class OnnxPolicy(Policy):
         if META_KEY not in props:
             raise PolicyError(f"policy {src!r} is an ONNX model without sim2real metadata")
         self.meta = meta_from_json(props[META_KEY], src)
+        self._has_scores = SCORES in {o.name for o in self._session.get_outputs()}
 
     @classmethod
     def load(cls, path: str | Path) -> OnnxPolicy:
@@ -159,4 +231,11 @@ class OnnxPolicy(Policy):
     def _act(self, batch: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(batch, dtype=np.float32).reshape(len(batch), -1)
         (out,) = self._session.run([OUTPUT], {INPUT: x})
+        return np.asarray(out, dtype=np.float32)
+
+    def _scores(self, batch: np.ndarray) -> np.ndarray | None:
+        if not self._has_scores:
+            return None
+        x = np.ascontiguousarray(batch, dtype=np.float32).reshape(len(batch), -1)
+        (out,) = self._session.run([SCORES], {INPUT: x})
         return np.asarray(out, dtype=np.float32)

@@ -40,9 +40,23 @@ class Policy(ABC):
         actions = self._act(batch)
         return actions[0] if single else actions
 
+    def scores(self, obs: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray | None:
+        """The per-action scores (logits or Q-values) a discrete policy's action is the argmax
+        of, or None for a policy without them. Parity checks compare them: equal actions can
+        hide drifting scores."""
+        batch, single = self._as_batch(obs)
+        out = self._scores(batch)
+        if out is None:
+            return None
+        return out[0] if single else out
+
     @abstractmethod
     def _act(self, batch: np.ndarray) -> np.ndarray:
         """(n, *obs_shape) float32 → (n, action_dim) float32."""
+
+    def _scores(self, batch: np.ndarray) -> np.ndarray | None:
+        """(n, *obs_shape) → (n, n_scores) float32; None where the policy has no scores."""
+        return None
 
     def _as_batch(self, obs: np.ndarray | Mapping[str, np.ndarray]) -> tuple[np.ndarray, bool]:
         m = self.meta

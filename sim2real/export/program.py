@@ -2,7 +2,8 @@
 
 The exporter turns an SB3 policy into this list once; the ``.npz`` file stores it, the ONNX
 writer translates it op by op, and ``NumpyPolicy`` runs it with numpy alone (a Raspberry Pi
-needs nothing else). Ops::
+needs nothing else). The list stays linear: each op maps one array to the next, (n, features)
+or, between ``image`` and ``flatten``, (n, channels, height, width). Ops::
 
     normalize  (x - mean) / std, then clip to ±clip      (VecNormalize, folded in)
     dense      x @ weight.T + bias                        (weight: (out, in))
@@ -10,6 +11,18 @@ needs nothing else). Ops::
     clip       per-dimension [low, high]                   (Gaussian policies' action clip)
     affine     x * scale + offset                          (squashed policies' unscale)
     argmax_table  table[argmax(x)]                         (DQN: Q-values → continuous action)
+    image      flat pixels → (n, C, H, W) / divisor        (SB3: HWC → CHW, uint8 / 255)
+               layout: how the flat observation holds them ("chw" | "hwc"); shape: [C, H, W]
+    conv2d     cross-correlation, weight (out, in, kh, kw), bias (out,), stride and zero
+               padding [rows, cols]                        (torch ``Conv2d``)
+    coord_concat  append coords (2, H, W) as channels      (CoordConv: x along W, y along H)
+    keypoints  (n, C, h, w) → (n, 3C): (x, y) of each channel's softmax(map / temperature)
+               over map_coords (2, h·w), then each channel's max(relu(map))  (spatial soft-argmax)
+    flatten    (n, ...) → (n, -1), C-major like torch
+    argmax     argmax(x) as a float32 (n, 1) index         (Discrete envs: the action)
+
+``argmax`` and ``argmax_table`` pick the action from per-action scores (logits or Q-values):
+``SELECT_OPS``. A program ending in one also exposes those scores, for parity checks.
 """
 
 from __future__ import annotations
@@ -17,10 +30,12 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from hardware.atomic import atomic_write_bytes
 from sim2real.export.policy import Policy, PolicyError, PolicyMeta, meta_from_json
@@ -83,6 +98,78 @@ def _argmax_table(x: np.ndarray, op: Op) -> np.ndarray:
     return op["table"][np.argmax(x, axis=1)]
 
 
+@dataclass(frozen=True)
+class ImageLayout:
+    """How a flat observation holds an image: ``dims`` picks its axes from (C, H, W), ``perm``
+    transposes the (n, *those axes) array to (n, C, H, W)."""
+
+    dims: tuple[int, int, int]
+    perm: tuple[int, int, int, int]
+
+    def shape(self, chw: tuple[int, int, int]) -> tuple[int, int, int]:
+        """The observation's own shape for an image the CNN reads as ``chw``."""
+        return (chw[self.dims[0]], chw[self.dims[1]], chw[self.dims[2]])
+
+
+# "chw" first: SB3 transposes an observation only when it is not already the CNN's shape.
+IMAGE_LAYOUTS: dict[str, ImageLayout] = {
+    "chw": ImageLayout((0, 1, 2), (0, 1, 2, 3)),
+    "hwc": ImageLayout((1, 2, 0), (0, 3, 1, 2)),  # cameras and gymnasium; SB3's VecTransposeImage
+}
+CONV_CHUNK = 256  # observations per im2col block: bounds its memory on a long batch
+
+
+def _image(x: np.ndarray, op: Op) -> np.ndarray:
+    layout = IMAGE_LAYOUTS[op["layout"]]
+    c, h, w = (int(n) for n in op["shape"])
+    y = x.reshape(len(x), *layout.shape((c, h, w))).transpose(layout.perm)
+    # a division, as torch's ``obs.float() / 255.0``: the same float32 for every pixel value
+    return np.ascontiguousarray(y / np.float32(op["divisor"]), dtype=np.float32)
+
+
+def _conv2d(x: np.ndarray, op: Op) -> np.ndarray:
+    """im2col by strided windows (no copy) and one matrix product per block of observations."""
+    weight = op["weight"]
+    sh, sw = (int(v) for v in op["stride"])
+    ph, pw = (int(v) for v in op["padding"])
+    kh, kw = weight.shape[2:]
+    if ph or pw:
+        x = np.pad(x, ((0, 0), (0, 0), (ph, ph), (pw, pw)))
+    out = []
+    for start in range(0, max(len(x), 1), CONV_CHUNK):
+        block = x[start : start + CONV_CHUNK]
+        # windows over all four axes (one sample, one channel, kh, kw): a view, no copy
+        cols = sliding_window_view(block, (1, 1, kh, kw))[:, :, ::sh, ::sw, 0, 0]
+        # (n, in, out_h, out_w, kh, kw) · (out, in, kh, kw) → (n, out_h, out_w, out)
+        out.append(np.tensordot(cols, weight, axes=([1, 4, 5], [1, 2, 3])))
+    y = np.concatenate(out)
+    return np.ascontiguousarray((y + op["bias"]).transpose(0, 3, 1, 2), dtype=np.float32)
+
+
+def _coord_concat(x: np.ndarray, op: Op) -> np.ndarray:
+    coords = np.broadcast_to(op["coords"], (len(x), *op["coords"].shape))
+    return np.concatenate((x, coords), axis=1)
+
+
+def _keypoints(x: np.ndarray, op: Op) -> np.ndarray:
+    n, c = x.shape[:2]
+    fmap = x.reshape(n, c, -1)
+    z = fmap / op["temperature"]
+    z = np.exp(z - z.max(axis=-1, keepdims=True))
+    attn = z / z.sum(axis=-1, keepdims=True)
+    points = (attn @ op["map_coords"].T).reshape(n, 2 * c)  # x, y of channel 0, then 1, ...
+    presence = np.maximum(fmap, np.float32(0.0)).max(axis=-1)
+    return np.concatenate((points, presence), axis=1).astype(np.float32)
+
+
+def _flatten(x: np.ndarray, op: Op) -> np.ndarray:
+    return x.reshape(len(x), -1)
+
+
+def _argmax(x: np.ndarray, op: Op) -> np.ndarray:
+    return np.argmax(x, axis=1).astype(np.float32)[:, None]
+
+
 OPS: dict[str, Callable[[np.ndarray, Op], np.ndarray]] = {
     "normalize": _normalize,
     "dense": _dense,
@@ -90,6 +177,18 @@ OPS: dict[str, Callable[[np.ndarray, Op], np.ndarray]] = {
     "clip": _clip,
     "affine": _affine,
     "argmax_table": _argmax_table,
+    "image": _image,
+    "conv2d": _conv2d,
+    "coord_concat": _coord_concat,
+    "keypoints": _keypoints,
+    "flatten": _flatten,
+    "argmax": _argmax,
+}
+SELECT_OPS: frozenset[str] = frozenset({"argmax", "argmax_table"})
+# op → (its field that names a choice, the registry of valid choices)
+CHOICES: dict[str, tuple[str, Mapping[str, Any]]] = {
+    "act": ("fn", ACTIVATIONS),
+    "image": ("layout", IMAGE_LAYOUTS),
 }
 
 
@@ -100,16 +199,25 @@ def run_program(program: list[Op], x: np.ndarray) -> np.ndarray:
     return y.astype(np.float32)
 
 
+def score_program(program: list[Op]) -> list[Op] | None:
+    """The ops up to the per-action scores the final argmax reads; None if it has none."""
+    if not program or program[-1]["op"] not in SELECT_OPS:
+        return None
+    return program[:-1]
+
+
 def validate_program(program: list[Op], source: str) -> None:
     for i, op in enumerate(program):
         kind = op.get("op")
         if kind not in OPS:
             raise PolicyError(f"policy {source!r}: op {i} {kind!r} unknown; valid: {sorted(OPS)}")
-        if kind == "act" and op.get("fn") not in ACTIVATIONS:
-            raise PolicyError(
-                f"policy {source!r}: activation {op.get('fn')!r} unknown; "
-                f"valid: {sorted(ACTIVATIONS)}"
-            )
+        if kind in CHOICES:
+            key, valid = CHOICES[kind]
+            if op.get(key) not in valid:
+                raise PolicyError(
+                    f"policy {source!r}: op {i} {kind!r} has {key} {op.get(key)!r}; "
+                    f"valid: {sorted(valid)}"
+                )
 
 
 # ---- .npz io: arrays by name plus a JSON description; loads with allow_pickle=False ----------
@@ -169,3 +277,7 @@ class NumpyPolicy(Policy):
 
     def _act(self, batch: np.ndarray) -> np.ndarray:
         return run_program(self.program, batch)
+
+    def _scores(self, batch: np.ndarray) -> np.ndarray | None:
+        ops = score_program(self.program)
+        return None if ops is None else run_program(ops, batch)

@@ -4,6 +4,7 @@ against. Reading one from a run directory is the trainer's business
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -30,11 +31,54 @@ class TorchPolicy(Policy):
             start += size
         return out
 
-    def _act(self, batch: np.ndarray) -> np.ndarray:
+    def _normalized(self, batch: np.ndarray) -> Any:
         obs = self.unflatten(batch)
         if self.vecnormalize is not None:
             obs = self.vecnormalize.normalize_obs(obs)
-        action, _ = self.model.predict(obs, deterministic=True)
+        return obs
+
+    def _act(self, batch: np.ndarray) -> np.ndarray:
+        action, _ = self.model.predict(self._normalized(batch), deterministic=True)
         if self.table is not None:
             action = self.table[np.asarray(action, dtype=np.int64).reshape(-1)]
         return np.asarray(action, dtype=np.float32).reshape(len(batch), -1)
+
+    def _scores(self, batch: np.ndarray) -> np.ndarray | None:
+        """A categorical actor's logits (the raw ``action_net`` output, not the distribution's
+        normalised ones) or DQN's Q-values; None for a continuous policy."""
+        import torch as th
+
+        policy = self.model.policy
+        head = _score_head(policy)
+        if head is None:
+            return None
+        policy.set_training_mode(False)  # no augmentation, as in ``predict``
+        obs, _ = policy.obs_to_tensor(self._normalized(batch))
+        with th.no_grad():
+            scores = head(policy, obs)
+        return np.asarray(scores.cpu().numpy(), dtype=np.float32)
+
+
+def _logits(policy: Any, obs: Any) -> Any:
+    from stable_baselines3.common.policies import BaseModel
+
+    # the actor's own extractor: ``ActorCriticPolicy.extract_features`` would run the critic's too
+    features = BaseModel.extract_features(policy, obs, policy.pi_features_extractor)
+    return policy.action_net(policy.mlp_extractor.forward_actor(features))
+
+
+def _q_values(policy: Any, obs: Any) -> Any:
+    return policy.q_net(obs)
+
+
+def _score_head(policy: Any) -> Callable[[Any, Any], Any] | None:
+    """How ``policy`` computes the scores its deterministic action is the argmax of."""
+    from gymnasium import spaces
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.dqn.policies import DQNPolicy
+
+    if isinstance(policy, DQNPolicy):
+        return _q_values
+    if isinstance(policy, ActorCriticPolicy) and isinstance(policy.action_space, spaces.Discrete):
+        return _logits
+    return None

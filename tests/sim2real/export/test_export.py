@@ -136,7 +136,9 @@ def test_policy_interface_rejects_bad_input(runs: dict[str, Path], tmp_path: Pat
         load_policy(tmp_path / "x.pt")
 
 
-def test_pixel_policies_are_refused_with_a_clear_message(tmp_path: Path) -> None:
+def test_pixel_run_exports_and_matches_torch_on_rendered_frames(tmp_path: Path) -> None:
+    """SB3's CnnPolicy (NatureCNN) on the arm's 48 px camera, continuous actions; the discrete
+    Kuka actors are tested op by op in ``test_pixels.py``."""
     run = tmp_path / "pix"
     cfg = resolve_config(
         "reach-pixels",
@@ -153,5 +155,9 @@ def test_pixel_policies_are_refused_with_a_clear_message(tmp_path: Path) -> None
         ],
     )
     train(cfg)
-    with pytest.raises(PolicyError, match="NatureCNN feature extractor"):
-        export_policy(run, "onnx", tmp_path / "p.onnx")
+    obs = sample_observations(run, 64)
+    assert obs.shape == (64, 48, 48, 3) and obs.dtype == np.uint8
+    for fmt, suffix in (("onnx", ".onnx"), ("numpy", ".npz")):
+        out = export_policy(run, fmt, tmp_path / f"p{suffix}")
+        assert max_action_diff(run, out, obs) <= PARITY_TOLERANCE
+        assert load_policy(out)(obs).shape == (64, 3)
