@@ -123,6 +123,7 @@ def main() -> None:
     import gymnasium as gym
 
     config = json.loads((Path(a.run) / "config.json").read_text())
+    status = json.loads((Path(a.run) / "status.json").read_text())
     card = {
         "file": out.name,
         "task": a.task or str(gym.spec(target.env_id).kwargs.get("task", "")),
@@ -132,7 +133,8 @@ def main() -> None:
         "figures": figures,
         "trained": {
             "dr": config["dr"],
-            "steps": config.get("steps"),
+            "steps": status.get("steps_done"),  # what it trained, not the config's bound
+            "wall_min": round(float(status.get("wall_s", 0.0)) / 60.0, 1),
             "seed": config.get("seed"),
             "measured": dt.date.today().isoformat(),
             "machine": f"{platform.machine()} {os.cpu_count()} cpu",

@@ -10,17 +10,21 @@ import numpy as np
 import pytest
 
 from hardware.spec import load_spec
+from sim2real import env_table
 from sim2real.cli.main import main
 from sim2real.deploy.policy_io import policy_io
+from sim2real.errors import ConfigError
 from sim2real.export.policy import load_policy
 from sim2real.policies import resolve_policy, shipped
 
 
-def test_every_shipped_policy_fits_the_shipped_arm_and_its_task_contract() -> None:
+def test_every_shipped_arm_policy_fits_the_shipped_arm_and_its_task_contract() -> None:
     ships = shipped()
     assert {"reach-ppo", "reach-ddpg"} <= set(ships)
     spec = load_spec()
-    for name, ship in ships.items():
+    arm = {n: s for n, s in ships.items() if s.task in env_table.DEPLOY_CONTRACTS}
+    assert {"reach-ppo", "pick-ppo", "trace-ppo"} <= set(arm)
+    for name, ship in arm.items():
         policy = load_policy(name)  # by name
         policy.meta.check_spec(spec.fingerprint())
         io = policy_io(spec, policy.meta)  # layout checked field by field
@@ -30,6 +34,27 @@ def test_every_shipped_policy_fits_the_shipped_arm_and_its_task_contract() -> No
         assert action.shape == (io.decoder.n_actions,) and np.all(np.abs(action) <= 1.0)
         assert ship.path.stat().st_size < 5_000_000  # a few MB at most
         assert 0.0 <= ship.figures["env_success_dr_default"] <= 1.0
+
+
+def test_a_shipped_pixel_policy_acts_on_its_envs_frames_and_refuses_to_deploy() -> None:
+    """The Kuka student runs in simulation only: it loads by name, picks one of the env's
+    discrete actions from the env's own frame, and the arm's deploy loop refuses it by name."""
+    import gymnasium as gym
+
+    ship = shipped()["kuka-distill"]
+    assert ship.task not in env_table.DEPLOY_CONTRACTS
+    assert ship.path.stat().st_size < 5_000_000
+    policy = load_policy("kuka-distill")
+    env = gym.make(ship.env_id)
+    try:
+        frame, _ = env.reset(seed=0)
+        action = policy(frame)
+        assert action.shape == (1,) and env.action_space.contains(int(action[0]))
+        env.step(int(action[0]))
+    finally:
+        env.close()
+    with pytest.raises(ConfigError, match="kuka-distill.onnx.*no deploy contract"):
+        policy_io(load_spec(), policy.meta)
 
 
 def test_policies_cli_lists_and_shows_cards(capsys: pytest.CaptureFixture[str]) -> None:
