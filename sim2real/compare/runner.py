@@ -84,6 +84,8 @@ def parse_presets(items: list[str]) -> dict[str, str]:
 
 
 def jobs_for(cfg: CompareConfig) -> list[dict[str, Any]]:
+    """Seed-major: every algorithm's seed 0 runs before any seed 1, so a study stopped early
+    still compares all of its algorithms."""
     from sim2real.compare.jobs import Job
 
     runs = Path(cfg.out) / "runs"
@@ -99,8 +101,8 @@ def jobs_for(cfg: CompareConfig) -> list[dict[str, Any]]:
             overrides=tuple(cfg.overrides.get(algo, ())),
             preset=cfg.presets.get(algo),
         ).to_dict()
-        for algo in cfg.algos
         for seed in range(cfg.seeds)
+        for algo in cfg.algos
     ]
 
 

@@ -115,6 +115,15 @@ def test_ray_backend_on_two_local_workers_gives_the_same_format(tmp_path: Path) 
     assert local["eval"]["mean_return"] == pytest.approx(remote["eval"]["mean_return"], rel=1e-6)
 
 
+def test_jobs_run_seed_major_so_an_early_stop_still_covers_every_algorithm(tmp_path: Path) -> None:
+    cfg = CompareConfig(
+        env="reach", algos=("ppo", "dqn"), seeds=2, steps=10, out=str(tmp_path / "grid")
+    )
+    order = [(j["algo"], j["seed"]) for j in jobs_for(cfg)]
+    assert order == [("ppo", 0), ("dqn", 0), ("ppo", 1), ("dqn", 1)]
+    assert [Path(j["run_dir"]).name for j in jobs_for(cfg)][:2] == ["ppo-s0", "dqn-s0"]
+
+
 def test_summary_pools_successes_with_wilson_and_spreads_over_seeds() -> None:
     def job(algo: str, seed: int, k: int) -> dict[str, Any]:
         return {
