@@ -48,6 +48,7 @@ from sim2real.scene_names import (
     TARGET_MARKER_SIZE_M,
     TARGET_PLATE_GEOM,
     TARGET_SITE,
+    TARGET_STAND_GEOM,
     TOOL_SITE,
     WRIST_JOINT,
 )
@@ -60,6 +61,10 @@ from sim2real.scene_names import Scene as Scene
 PHYSICS_TIMESTEP_S = 0.005
 # Position-servo stiffness: the stall torque is reached at this tracking error.
 SERVO_SATURATION_ERROR_RAD = 0.035
+# The target's post (``build_mjcf(target_stand=True)``): a 10 mm dowel, longer than any target
+# is high, so its lower end is always under the table top.
+TARGET_STAND_RADIUS_M = 0.005
+TARGET_STAND_LENGTH_M = 0.6
 ARMATURE_KG_M2 = 0.002  # reflected rotor inertia of a ~1:300 hobby gearbox
 
 
@@ -297,13 +302,23 @@ def _arm_xml(spec: ArmSpec, markers: bool = False) -> tuple[str, str]:
 
 
 def build_mjcf(
-    spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None, markers: bool = False
+    spec: ArmSpec,
+    scene: str = "reach",
+    rig: RigSpec | None = None,
+    markers: bool = False,
+    target_stand: bool = False,
 ) -> str:
     """The MJCF text of the arm in a scene with the stereo rig.
 
     ``markers=True`` adds ArUco plates (on the target and on the wrist; in ``pick`` on the
     cube's five visible faces, in ``trace`` at the seam's two ends) whose textures
     ``sim2real.deploy.marker_textures.install_marker_textures`` fills in after compilation.
+
+    ``target_stand=True`` puts the target sphere on a thin dark post down to the table, as a
+    physical target needs one. It is what lets one camera see the target's depth: a floating
+    sphere of 16 mm projects to the same pixel from anywhere on its viewing ray (12.7 cm of the
+    reachable workspace, median, in the left camera), while the post's foot on the table fixes
+    (x, y) and its visible length the height. Visual only (no contacts), hidden under the table.
     """
     if scene not in SCENES:
         raise UnknownNameError("scene", scene, SCENES)
@@ -326,6 +341,13 @@ def build_mjcf(
         cams.append(
             f'<camera name="{cam.name}" pos="{_f(*cam.base_p_cam_m)}" quat="{_f(*quat)}" '
             f'fovy="{_f(cam.fovy_deg)}" resolution="{cam.width_px} {cam.height_px}"/>'
+        )
+    stand = ""
+    if target_stand:
+        stand = (
+            f'\n      <geom name="{TARGET_STAND_GEOM}" type="cylinder" '
+            f'fromto="0 0 -0.008 0 0 -{_f(TARGET_STAND_LENGTH_M)}" size="{_f(TARGET_STAND_RADIUS_M)}" '
+            'rgba="0.15 0.15 0.17 1" contype="0" conaffinity="0" mass="0.001"/>'
         )
     cube = ""
     if scene == "pick":
@@ -382,7 +404,7 @@ def build_mjcf(
     <body name="{TARGET_BODY}" mocap="true" pos="0.16 0 0.1">
       <site name="{TARGET_SITE}" type="sphere" size="0.008" rgba="{"0 0 0 0" if markers else "0.9 0.1 0.1 0.7"}"/>
       <geom name="{MARKER_GEOM}" type="sphere" size="0.008" material="marker" rgba="{"0 0 0 0" if markers else "0.9 0.1 0.1 1"}" contype="0" conaffinity="0"/>
-      {target_plate}
+      {target_plate}{stand}
     </body>{cube}
     {path}
     {"".join(cams)}
@@ -392,10 +414,14 @@ def build_mjcf(
 
 
 def build_model(
-    spec: ArmSpec, scene: str = "reach", rig: RigSpec | None = None, markers: bool = False
+    spec: ArmSpec,
+    scene: str = "reach",
+    rig: RigSpec | None = None,
+    markers: bool = False,
+    target_stand: bool = False,
 ) -> mujoco.MjModel:
     """Compile the MJCF; the compiled model is the nominal one that DR restores to."""
-    return mujoco.MjModel.from_xml_string(build_mjcf(spec, scene, rig, markers))
+    return mujoco.MjModel.from_xml_string(build_mjcf(spec, scene, rig, markers, target_stand))
 
 
 def gripper_rad_to_finger_m(spec: ArmSpec, angle_rad: float) -> float:

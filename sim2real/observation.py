@@ -16,6 +16,13 @@ import numpy as np
 from hardware.spec import ArmSpec
 from sim2real.errors import ConfigError
 
+# A pixel observation with proprioception is ``{PIXELS_KEY: frame, PROPRIO_KEY: vector}``; the
+# vector holds these state-observation fields (the env's ``proprio`` kwarg picks and orders
+# them): what the arm itself knows on hardware, its servo readings and what it commanded.
+PIXELS_KEY = "pixels"
+PROPRIO_KEY = "proprio"
+PROPRIO_FIELDS: tuple[str, ...] = ("joint_pos", "joint_target", "prev_action")
+
 
 @dataclass(frozen=True)
 class ObsField:

@@ -29,6 +29,7 @@ LINK_ROOT_BODY = "upper_arm"  # the first link the shoulder moves: it and below 
 LEVEL_TENDON = "gripper_level"
 MARKER_GEOM = "target_marker"
 TARGET_PLATE_GEOM = "target_plate"
+TARGET_STAND_GEOM = "target_stand"  # the post a pixel reach target stands on (opt-in)
 EE_MARKER_GEOM = "ee_marker"
 PATH_GEOM_PREFIX = "seam_"
 SEAM_BODY = "seam"

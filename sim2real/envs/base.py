@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -30,6 +30,9 @@ from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.model import ArmTwin, RigSpec, build_model
 from sim2real.observation import (
     COMMAND_FIELDS,
+    PIXELS_KEY,
+    PROPRIO_FIELDS,
+    PROPRIO_KEY,
     ActionDecoder,
     ObservationBuilder,
     ObsField,
@@ -62,6 +65,8 @@ REWARDS: dict[str, Callable[[Any, Any], Any]] = {
     "sparse": _sparse_reward,
 }
 OBS_MODES: tuple[str, ...] = ("state", "goal", "pixels")
+# ``success_threshold_m`` overrides the task's own success distance within (0, this].
+MAX_SUCCESS_THRESHOLD_M = 0.05
 # ``reset(options={"start": ...})``: "default" is the task's own start; "held" (tasks that list
 # it in ``start_modes``) starts with the object already in the gripper, a training curriculum.
 START_DEFAULT, START_HELD = "default", "held"
@@ -164,8 +169,9 @@ class Task(ABC):
         return 0.0
 
     def success_from_distance(self, env: Arm3Env, distance_m: float) -> bool:
-        """Success given the true achieved-to-desired distance (tasks may judge differently)."""
-        return distance_m < self.success_threshold_m
+        """Success given the true achieved-to-desired distance (tasks may judge differently);
+        the env's threshold: the task's own unless ``success_threshold_m`` was given."""
+        return distance_m < env.success_threshold_m
 
     def is_success(self, env: Arm3Env) -> bool:
         achieved, desired = self.true_goals(env)
@@ -173,6 +179,32 @@ class Task(ABC):
 
 
 TASKS: dict[str, type[Task]] = {}
+
+
+def _check_success_threshold(value: Any) -> float:
+    """A success distance in (0, ``MAX_SUCCESS_THRESHOLD_M``] m: a preset asking for 2 cm gets
+    2 cm in training and in ``evaluate`` alike (the run records its env kwargs)."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if not ok or not 0.0 < value <= MAX_SUCCESS_THRESHOLD_M:
+        raise ConfigError(
+            f"success_threshold_m must be a number in (0, {MAX_SUCCESS_THRESHOLD_M}], got {value!r}"
+        )
+    return float(value)
+
+
+def _check_proprio(names: Any, obs_mode: str) -> tuple[str, ...]:
+    """``proprio``: fields of ``PROPRIO_FIELDS`` beside a pixel observation, once each."""
+    if isinstance(names, str) or not isinstance(names, Sequence):
+        raise ConfigError(f"proprio must be a list of field names, got {names!r}")
+    out = tuple(names)
+    if out and obs_mode != "pixels":
+        raise ConfigError(f"proprio {list(out)} needs obs_mode='pixels', got {obs_mode!r}")
+    for name in out:
+        if name not in PROPRIO_FIELDS:
+            raise UnknownNameError("proprio field", str(name), PROPRIO_FIELDS)
+    if len(set(out)) != len(out):
+        raise ConfigError(f"proprio fields must be unique, got {list(out)}")
+    return out
 
 
 def register_task(cls: type[Task]) -> type[Task]:
@@ -203,6 +235,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         render_width: int = 640,
         render_height: int = 480,
         safety_filter: bool = False,
+        success_threshold_m: float | None = None,
+        proprio: Sequence[str] = (),
+        target_stand: bool = False,
     ) -> None:
         if task not in TASKS:
             raise UnknownNameError("task", task, TASKS)
@@ -220,6 +255,12 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             raise ConfigError(f"max_episode_steps {max_episode_steps} must be >= 1")
         if image_size not in (48, 64, 84, 96, 128):
             raise ConfigError(f"image_size {image_size} not one of [48, 64, 84, 96, 128]")
+        self.success_threshold_m = _check_success_threshold(
+            self.task.success_threshold_m if success_threshold_m is None else success_threshold_m
+        )
+        self.proprio = _check_proprio(proprio, obs_mode)
+        if not isinstance(target_stand, bool):
+            raise ConfigError(f"target_stand must be true or false, got {target_stand!r}")
         self.spec_arm = spec if isinstance(spec, ArmSpec) else load_spec(spec)
         self.rig = rig or RigSpec()
         self.rig.camera(camera)  # validates the name
@@ -229,7 +270,9 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self.render_mode = render_mode
         self.max_episode_steps = max_episode_steps
 
-        self.model = build_model(self.spec_arm, self.task.scene, self.rig)
+        self.model = build_model(
+            self.spec_arm, self.task.scene, self.rig, target_stand=target_stand
+        )
         self.data = mujoco.MjData(self.model)
         self.control_dt_s = 1.0 / control_hz
         self.frame_skip = max(1, round(self.control_dt_s / self.model.opt.timestep))
@@ -274,9 +317,20 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
                 {"observation": vec, "achieved_goal": goal, "desired_goal": goal}
             )
         elif obs_mode == "pixels":
-            self.observation_space = gym.spaces.Box(
-                0, 255, (image_size, image_size, 3), dtype=np.uint8
+            image = gym.spaces.Box(0, 255, (image_size, image_size, 3), dtype=np.uint8)
+            self.observation_space = image
+            # The arm's own readings beside the frame, each through its state-observation model
+            # (servo readings with bias, noise, quantisation and delay; what was commanded).
+            layout = {f.name: f for f in self.builder.layout()}
+            self._proprio_idx = np.array(
+                [i for n in self.proprio for i in range(layout[n].start, layout[n].stop)],
+                dtype=np.intp,
             )
+            if self.proprio:
+                readings = gym.spaces.Box(
+                    -np.inf, np.inf, (len(self._proprio_idx),), dtype=np.float32
+                )
+                self.observation_space = gym.spaces.Dict({PIXELS_KEY: image, PROPRIO_KEY: readings})
         else:
             self.observation_space = vec
 
@@ -377,7 +431,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._steps += 1
         obs, d, shaped = self._observe(rng)
         success = self.task.success_from_distance(self, d)
-        reward = float(self._reward_fn(d, d < self.task.success_threshold_m))
+        reward = float(self._reward_fn(d, d < self.success_threshold_m))
         if self.obs_mode != "goal":  # HER recomputes rewards from goals alone
             # NaN: the compiled shaping needs MuJoCo's contact list, which ``shaping`` reads
             reward += self.task.shaping(self) if shaped is None or shaped != shaped else shaped
@@ -562,7 +616,23 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         achieved, desired = task.true_goals(self)
         if self.obs_mode == "pixels":
             diff = achieved - desired
-            return self._pixels(), math.sqrt(diff @ diff), None
+            d = math.sqrt(diff @ diff)
+            if not self.proprio:
+                return self._pixels(), d, None
+            vec, _, _ = self._observe_state(rng, achieved, desired)
+            return {PIXELS_KEY: self._pixels(), PROPRIO_KEY: vec[self._proprio_idx]}, d, None
+        vec, d, shaped = self._observe_state(rng, achieved, desired)
+        if self.obs_mode == "goal":
+            goals = self._goals.astype(np.float32)
+            obs = {"observation": vec, "achieved_goal": goals[0], "desired_goal": goals[1]}
+            return obs, d, None
+        return vec, d, shaped if self._shaping_compiled else None
+
+    def _observe_state(
+        self, rng: np.random.Generator, achieved: np.ndarray, desired: np.ndarray
+    ) -> tuple[np.ndarray, float, float]:
+        """The state vector (one compiled call, see ``_observe``), the distance, the shaping."""
+        task = self.task
         ints = self._obs_ints
         points = task.true_points(self)
         noise = self._sensor_noise.take(rng)  # ``SensorModel.draw``'s normals
@@ -574,11 +644,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
             self._targets, self._prev_action, task.obs_aux, achieved, desired, vec, self._geom_xpos,
             task.shaping_ids, task.shaping_prm,
         )  # fmt: skip
-        if self.obs_mode == "goal":
-            goals = self._goals.astype(np.float32)
-            obs = {"observation": vec, "achieved_goal": goals[0], "desired_goal": goals[1]}
-            return obs, d, None
-        return vec, d, shaped if self._shaping_compiled else None
+        return vec, d, shaped
 
     def _pixels(self) -> np.ndarray:
         if self._pixel_renderer is None:
@@ -601,4 +667,4 @@ class Arm3GoalEnv(Arm3Env):
     ) -> np.ndarray:
         """Vectorised goal reward for HER (batches of goals)."""
         d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
-        return self._reward_fn(d, d < self.task.success_threshold_m).astype(np.float32)
+        return self._reward_fn(d, d < self.success_threshold_m).astype(np.float32)

@@ -178,10 +178,11 @@ class TraceTask(Task):
         return (ObsField("goal_vel", 3, "m/s", "velocity of the seam point to follow"),)
 
     def success_from_distance(self, env: Arm3Env, distance_m: float) -> bool:
-        """Mean tracking error along the seam, not the last step's distance."""
+        """Mean tracking error along the seam, not the last step's distance (against the env's
+        threshold: ``SUCCESS_MEAN_ERROR_M`` unless ``success_threshold_m`` was given)."""
         if self._err_n == 0:
             return False
-        return self._err_sum_m / self._err_n < SUCCESS_MEAN_ERROR_M
+        return self._err_sum_m / self._err_n < env.success_threshold_m
 
     @property
     def mean_tracking_error_m(self) -> float:

@@ -226,7 +226,7 @@ ALGOS: dict[str, AlgoSpec] = {
         "distill",
         Distill,
         False,
-        True,
+        False,  # acts in the env's own space, as its teacher does (Discrete Kuka, Box arm)
         False,
         ("train/distill_loss", "train/teacher_agreement", "train/batch_accuracy"),
         "DAgger from a privileged teacher",

@@ -13,13 +13,19 @@ evaluation and deployment build bare envs and call the same policy; the critic i
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy, BaseModel
-from stable_baselines3.common.preprocessing import get_flattened_obs_dim
+from stable_baselines3.common.preprocessing import (
+    get_flattened_obs_dim,
+    is_image_space,
+    is_image_space_channels_first,
+)
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sim2real.errors import ConfigError
@@ -102,10 +108,26 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
         return features
 
     def obs_to_tensor(self, observation: Any) -> tuple[Any, bool]:
-        """A bare image (what evaluation and deployment have) is the actor's whole input."""
+        """A bare image (what evaluation and deployment have) is the actor's whole input. A
+        ``Dict`` one (a frame beside proprioception) may carry its image flattened, as the
+        ``Policy`` interface concatenates the keys: it is the env's frame, reshaped here."""
         if not isinstance(observation, dict):
             observation = {PIXELS_KEY: observation}
+        else:
+            observation = {k: self._frame(k, v) for k, v in observation.items()}
         return super().obs_to_tensor(observation)
+
+    def _frame(self, key: str, value: Any) -> Any:
+        """A flat (n, H·W·C) image key back to the env's channel-last (n, H, W, C) frames
+        (SB3 then transposes them to the policy's channel-first space); anything else as is."""
+        space = self.observation_space[key]  # type: ignore[index]
+        arr = np.asarray(value)
+        if not is_image_space(space) or arr.ndim > 2 or arr.shape[-1] != math.prod(space.shape):
+            return value
+        shape = space.shape
+        if is_image_space_channels_first(space):
+            shape = (shape[1], shape[2], shape[0])
+        return arr.reshape(-1, *shape)
 
     def actor_modules(self) -> dict[str, th.nn.Module]:
         """Everything an exported actor consists of (the critic is not among them)."""

@@ -23,8 +23,8 @@ from stable_baselines3.common.preprocessing import get_flattened_obs_dim, is_ima
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sim2real.errors import ConfigError
+from sim2real.observation import PIXELS_KEY as PIXELS_KEY  # the image of a Dict observation
 
-PIXELS_KEY = "pixels"  # the image of a Dict observation built by ``PrivilegedObservation``
 PRIVILEGED_KEY = "privileged"  # the simulator's state: critics and teachers only
 MAX_SHIFT_PX = 16
 

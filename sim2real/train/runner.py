@@ -113,7 +113,9 @@ def _action_table(cfg: TrainConfig, algo: AlgoSpec, env: gym.Env[Any, Any]) -> n
 
 def _check_observation_features(cfg: TrainConfig, env: gym.Env[Any, Any]) -> None:
     """Augmentation needs an image; an asymmetric critic or a teacher the privileged state."""
-    if cfg.augment and not is_image_space(env.observation_space):
+    space = env.observation_space
+    parts = space.spaces.values() if isinstance(space, gym.spaces.Dict) else (space,)
+    if cfg.augment and not any(is_image_space(s) for s in parts):
         raise ConfigError(f"augment: {cfg.env_id} does not observe an image")
     if cfg.uses_privileged and getattr(env.unwrapped, "privileged_space", None) is None:
         what = "privileged_critic" if cfg.privileged_critic else f"algo {cfg.algo}"

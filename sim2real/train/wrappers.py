@@ -145,7 +145,9 @@ PRIVILEGED_INFO_KEY = "privileged_state"
 
 
 class PrivilegedObservation(gym.Wrapper[Any, Any, Any, Any]):
-    """Training-only: the observation becomes ``{"pixels": obs, "privileged": info[...]}``.
+    """Training-only: the observation becomes ``{"pixels": obs, "privileged": info[...]}``, or,
+    for an env that already observes a ``Dict`` (a frame and proprioception), that ``Dict`` with
+    ``"privileged"`` added.
 
     The env reports its privileged state (object positions and the like) in ``info`` at reset and
     at every step, beside an observation that never contains it; only this wrapper, which the
@@ -163,13 +165,17 @@ class PrivilegedObservation(gym.Wrapper[Any, Any, Any, Any]):
                 f"{type(env.unwrapped).__name__} reports no privileged state "
                 f"(info[{PRIVILEGED_INFO_KEY!r}]); asymmetric critics and distillation need one"
             )
+        inner = env.observation_space
+        self._keyed = isinstance(inner, gym.spaces.Dict)
+        spaces = dict(inner.spaces) if isinstance(inner, gym.spaces.Dict) else {PIXELS_KEY: inner}
+        if PRIVILEGED_KEY in spaces:
+            raise ConfigError(f"the observation already has a {PRIVILEGED_KEY!r} key: {inner}")
         self._pixels, self._privileged = PIXELS_KEY, PRIVILEGED_KEY
-        self.observation_space = gym.spaces.Dict(
-            {PIXELS_KEY: env.observation_space, PRIVILEGED_KEY: space}
-        )
+        self.observation_space = gym.spaces.Dict({**spaces, PRIVILEGED_KEY: space})
 
     def _obs(self, obs: Any, info: dict[str, Any]) -> dict[str, Any]:
-        return {self._pixels: obs, self._privileged: info[PRIVILEGED_INFO_KEY]}
+        keyed = dict(obs) if self._keyed else {self._pixels: obs}
+        return {**keyed, self._privileged: info[PRIVILEGED_INFO_KEY]}
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)

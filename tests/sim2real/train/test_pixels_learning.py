@@ -402,7 +402,8 @@ def test_distill_auxiliary_head_regresses_the_teachers_inputs_and_stays_out_of_t
 
 
 def test_distill_rejects_unknown_teachers_and_envs_without_privileged_state(tmp_path: Path) -> None:
-    with pytest.raises(UnknownNameError, match="unknown teacher 'oracle'; valid: kuka_scripted"):
+    valid = "kuka_scripted, reach_ik, reach_servo"
+    with pytest.raises(UnknownNameError, match=f"unknown teacher 'oracle'; valid: {valid}"):
         resolve_config("kuka-fast", "distill", tmp_path / "a", overrides=["teacher=oracle"])
     cfg = resolve_config(
         "reach", "distill", tmp_path / "b", preset="distill_kuka_fast", overrides=["augment=null"]
