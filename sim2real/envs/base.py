@@ -207,6 +207,12 @@ def _check_proprio(names: Any, obs_mode: str) -> tuple[str, ...]:
     return out
 
 
+def privileged_true_size(spec: ArmSpec, task: type[Task] | Task) -> int:
+    """How many leading values of ``Arm3Env.privileged_state`` are the simulator's truth (the
+    readings' joints, the targets, the tool, the task's points); the state observation follows."""
+    return spec.n_joints + int(task.uses_gripper) + spec.n_actuators + 3 * (1 + task.n_points)
+
+
 def register_task(cls: type[Task]) -> type[Task]:
     """Class decorator: a new mission is one file with one decorated Task subclass."""
     TASKS[cls.name] = cls
@@ -349,8 +355,10 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self._needs_reset = True
         self.dr_params: dict[str, Any] = {}
         # Pixel variants report the true state in info["privileged_state"], for training-only
-        # critics and teachers (sim2real.train); the observation never holds it.
-        n_priv = self._n_readings + len(self._targets) + 3 * (1 + self.task.n_points)
+        # critics and teachers (sim2real.train); the observation never holds it. Its tail is the
+        # state observation (``privileged_state``), so ``_observe`` senses in every mode.
+        self._state_obs = np.zeros(self.builder.size, dtype=np.float32)
+        n_priv = privileged_true_size(spec, self.task) + self.builder.size
         self.privileged_space = (
             gym.spaces.Box(-np.inf, np.inf, (n_priv,), dtype=np.float32)
             if obs_mode == "pixels"
@@ -517,13 +525,16 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
 
     def privileged_state(self) -> np.ndarray:
         """True joint angles (and gripper), joint targets, then the tool and the task's points
-        (m, world): no sensor model, no delay."""
+        (m, world): no sensor model, no delay (``privileged_true_size`` values). Then the last
+        state observation (``builder.layout()``): what this env in ``obs_mode="state"`` observes
+        through the same sensor models, bit for bit for the same seed and actions, so that a
+        shipped state policy can teach a pixel student (``distill``'s ``pick_ppo``)."""
         q = self.data.qpos[self._qadr]
         if self.task.uses_gripper:
             q = np.append(q, self.gripper_angle_rad())
         tool = self.data.site_xpos[self._tool_site]
         points = self.task.true_points(self).reshape(-1)
-        return np.concatenate([q, self._targets, tool, points]).astype(np.float32)
+        return np.concatenate([q, self._targets, tool, points, self._state_obs]).astype(np.float32)
 
     def _init_fused(self) -> None:
         """What the compiled step needs that a reset does not change (``sim2real.envs.fused``)."""
@@ -615,13 +626,15 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         task = self.task
         achieved, desired = task.true_goals(self)
         if self.obs_mode == "pixels":
-            diff = achieved - desired
-            d = math.sqrt(diff @ diff)
+            # sensed as in "state" (the same draws from ``rng``): the proprioception and the
+            # privileged state's tail are the state env's observation
+            vec, d, _ = self._observe_state(rng, achieved, desired)
+            self._state_obs = vec
             if not self.proprio:
                 return self._pixels(), d, None
-            vec, _, _ = self._observe_state(rng, achieved, desired)
             return {PIXELS_KEY: self._pixels(), PROPRIO_KEY: vec[self._proprio_idx]}, d, None
         vec, d, shaped = self._observe_state(rng, achieved, desired)
+        self._state_obs = vec
         if self.obs_mode == "goal":
             goals = self._goals.astype(np.float32)
             obs = {"observation": vec, "achieved_goal": goals[0], "desired_goal": goals[1]}

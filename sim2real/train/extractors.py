@@ -16,6 +16,7 @@ from typing import Any
 
 import gymnasium as gym
 import torch as th
+from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, NatureCNN
 
 from sim2real.errors import ConfigError, UnknownNameError
@@ -88,12 +89,33 @@ def get_extractor(name: str) -> type[BaseFeaturesExtractor]:
         raise UnknownNameError("features_extractor", name, FEATURE_EXTRACTORS) from None
 
 
+# ``policy_kwargs.optimizer`` → the optimizer class. ``rmsprop_tf_like`` is SB3's TensorFlow-style
+# RMSprop (squared-gradient average started at 1, eps inside the root): PyTorch's starts it at 0,
+# so its first steps are ~10x the learning rate on every weight, which collapsed A2C's policy on
+# Kuka (entropy 1.95 -> 1e-8 nats within 2,560 steps, 2026-11-27; docs/studies/kuka-pixels).
+OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {
+    "adam": th.optim.Adam,
+    "rmsprop": th.optim.RMSprop,
+    "rmsprop_tf_like": RMSpropTFLike,
+}
+
+
+def get_optimizer(name: str) -> type[th.optim.Optimizer]:
+    try:
+        return OPTIMIZERS[name]
+    except KeyError:
+        raise UnknownNameError("optimizer", name, OPTIMIZERS) from None
+
+
 def resolve_policy_kwargs(
     pk: dict[str, Any], shift_px: int = 0, pixel_actor: bool = False
 ) -> dict[str, Any]:
-    """Names in a preset's ``policy_kwargs`` → the classes SB3 takes. With image augmentation or
+    """Names in a preset's ``policy_kwargs`` → the classes SB3 takes (``features_extractor``,
+    ``optimizer``). With image augmentation or
     an asymmetric policy the named CNN (NatureCNN by default) runs inside ``PixelActorExtractor``."""
     out = dict(pk)
+    if "optimizer" in out:
+        out["optimizer_class"] = get_optimizer(str(out.pop("optimizer")))
     if shift_px or pixel_actor:
         from sim2real.train.augment import PixelActorExtractor
 

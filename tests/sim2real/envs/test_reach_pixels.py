@@ -179,16 +179,16 @@ def test_the_teacher_corrects_the_kinematic_offset_it_measures() -> None:
         env.reset(seed=0)
         priv = u.privileged_state().astype(np.float64)
         spec = u.spec_arm
-        q_goal = spec.inverse_kinematics(priv[-3:])
+        q_goal = spec.inverse_kinematics(priv[10:13])
         expect = np.clip((q_goal - priv[3:6]) / u.decoder.max_delta_rad, -1, 1)
         np.testing.assert_allclose(teacher.action(priv), expect, atol=1e-5)
         shifted = priv.copy()
         shifted[7:10] += (0.0, 0.0, 0.01)  # the tool 1 cm above where fk(q) puts it
-        aim = priv[-3:] - (0.0, 0.0, 0.01)
+        aim = priv[10:13] - (0.0, 0.0, 0.01)
         expect = np.clip((spec.inverse_kinematics(aim) - priv[3:6]) / 0.1, -1, 1)
         np.testing.assert_allclose(teacher.action(shifted), expect, atol=1e-4)
         np.testing.assert_allclose(
-            teacher.inputs(priv), 10 * np.r_[priv[-3:] - priv[7:10], priv[7:10]], rtol=1e-5
+            teacher.inputs(priv), 10 * np.r_[priv[10:13] - priv[7:10], priv[7:10]], rtol=1e-5
         )
         # steering from the true joints, with a gain: the step starts from q, not the command
         servo = ReachServo(u.decoder, 0.4, "joints")

@@ -64,3 +64,25 @@ def test_preset_extractor_reaches_the_policy_and_reloads(run_dir: Path, tiny: Tr
     )
     model = PPO.load(RunDir(run_dir).model_path, device="cpu")
     assert isinstance(model.policy.features_extractor, KeypointCNN)
+
+
+def test_a_named_optimizer_reaches_sb3_and_the_tf_style_rmsprop_starts_small() -> None:
+    from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
+
+    from sim2real.train.extractors import resolve_policy_kwargs
+
+    out = resolve_policy_kwargs({"optimizer": "rmsprop_tf_like", "optimizer_kwargs": {"eps": 1e-5}})
+    assert out["optimizer_class"] is RMSpropTFLike and "optimizer" not in out
+    with pytest.raises(UnknownNameError, match="unknown optimizer 'lbfgs'; valid: adam, rmsprop"):
+        resolve_policy_kwargs({"optimizer": "lbfgs"})
+    # Why the A2C preset names it: PyTorch's RMSprop starts its squared-gradient average at 0, so
+    # the first step moves each weight by ~10x the learning rate; the TF-style one by ~lr * |g|.
+    steps = {}
+    for name, cls in (("torch", th.optim.RMSprop), ("tf", RMSpropTFLike)):
+        w = th.nn.Parameter(th.zeros(4))
+        opt = cls([w], lr=1e-3, alpha=0.99, eps=1e-5)
+        w.grad = th.full((4,), 0.01)
+        opt.step()
+        steps[name] = float(w.detach().abs().max())
+    assert steps["torch"] == pytest.approx(1e-2, rel=1e-2)
+    assert steps["tf"] < 1e-4
