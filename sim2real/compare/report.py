@@ -171,6 +171,25 @@ def _portable(job: Mapping[str, Any], out: Path) -> dict[str, Any]:
     return j
 
 
+def _budget_text(config: Mapping[str, Any], jobs: Sequence[Mapping[str, Any]]) -> str:
+    """The steps the runs actually trained: a wall-clock limit (``--set max_wall_s=...``) can
+    stop a run before ``--steps``, and the report must not claim the budget it did not get."""
+    steps = int(config["steps"])
+    done = [int(j["steps"]) for j in jobs]
+    if not done or min(done) >= steps:
+        return f"for {steps} env steps"
+    return (
+        f"for at most {steps} env steps; a wall-clock limit stopped runs after "
+        f"{min(done):,}–{max(done):,} steps (the runs table gives each)"
+    )
+
+
+def _overrides_text(overrides: Mapping[str, Sequence[str]]) -> str:
+    """The ``--set`` overrides on top of the presets, per algorithm (empty when none)."""
+    named = "; ".join(f"{a}: `{' '.join(v)}`" for a, v in sorted(overrides.items()) if v)
+    return f" Overrides (`--set`): {named}." if named else ""
+
+
 def _presets_text(presets: dict[str, str]) -> str:
     """Which hyperparameter presets the runs used, for the report's first paragraph."""
     if not presets:
@@ -188,7 +207,9 @@ def write_report(
     out.mkdir(parents=True, exist_ok=True)
     jobs = [_portable(j, out) for j in jobs]
     summary = summarise(jobs)
-    title = f"{config['env_id']}, DR {config['dr']}, {config['steps']} steps"
+    stopped = any(int(j["steps"]) < int(config["steps"]) for j in jobs)
+    budget = f"{'≤ ' if stopped else ''}{config['steps']} steps"
+    title = f"{config['env_id']}, DR {config['dr']}, {budget}"
     files: dict[str, Path] = {
         "learning_curves": plot_learning(jobs, out / "learning_curves.png", title),
         "final_success": plot_final(summary, out / "final_success.png", title),
@@ -210,9 +231,10 @@ def write_report(
         f"# Algorithm comparison: {config['env_id']}",
         "",
         f"Created {created} with backend `{config['backend']}`. Every (algorithm, seed) trained "
-        f"for {config['steps']} env steps under DR preset `{config['dr']}` with "
+        f"{_budget_text(config, jobs)} under DR preset `{config['dr']}` with "
         f"{_presets_text(config.get('presets') or {})}, then ran {config['eval_episodes']} "
-        "deterministic episodes on held-out seeds (the same seeds for every run).",
+        "deterministic episodes on held-out seeds (the same seeds for every run)."
+        + _overrides_text(config.get("overrides") or {}),
         "",
         "## Final success (held-out episodes)",
         "",

@@ -66,6 +66,25 @@ VERSION_PACKAGES: tuple[str, ...] = (
 )
 
 
+# The torch device SB3 trains on. CPU unless this is set (e.g. ``cuda``): every figure in
+# BENCHMARKS.md is a CPU figure unless it says otherwise, and a saved model loads on the CPU.
+TORCH_DEVICE_ENV = "SIM2REAL_TORCH_DEVICE"
+
+
+def torch_device() -> str:
+    """``$SIM2REAL_TORCH_DEVICE`` (default ``cpu``), checked before anything is built."""
+    import os
+
+    name = os.environ.get(TORCH_DEVICE_ENV, "") or "cpu"
+    try:
+        device = th.device(name)
+    except RuntimeError:
+        raise ConfigError(f"{TORCH_DEVICE_ENV}={name!r} is not a torch device") from None
+    if device.type == "cuda" and not th.cuda.is_available():
+        raise ConfigError(f"{TORCH_DEVICE_ENV}={name!r}, but torch sees no CUDA device")
+    return name
+
+
 @dataclass(frozen=True)
 class TrainResult:
     run_dir: Path
@@ -415,7 +434,7 @@ def _setup(
             policy_cls,
             venv,
             seed=cfg.seed,
-            device="cpu",
+            device=torch_device(),
             verbose=0,
             **_hyperparams(cfg, algo, n_actions),
         )
@@ -502,7 +521,7 @@ def resume(
     venv = session.vec_env(ckpt.vecnormalize)
     algo = session.algo
     try:
-        model = algo.cls.load(str(ckpt.model), env=venv, device="cpu")  # type: ignore[attr-defined]
+        model = algo.cls.load(str(ckpt.model), env=venv, device=torch_device())  # type: ignore[attr-defined]
     except Exception as exc:  # a truncated zip, a pickle from another version
         venv.close()
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__

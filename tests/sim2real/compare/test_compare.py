@@ -191,3 +191,16 @@ def test_bad_grids_fail_before_any_training(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="unknown ppo hyperparameter"):
         run_compare(cfg)
     assert not (tmp_path / "x" / "runs").exists()
+
+
+def test_the_report_states_the_steps_a_wall_limit_left_and_the_overrides() -> None:
+    from sim2real.compare.report import _budget_text, _overrides_text
+
+    config = {"steps": 1000}
+    assert _budget_text(config, [{"steps": 1000}, {"steps": 1024}]) == "for 1000 env steps"
+    text = _budget_text(config, [{"steps": 700}, {"steps": 1000}])
+    assert "at most 1000 env steps" in text and "700–1,000 steps" in text
+    assert _overrides_text({}) == ""
+    assert _overrides_text({"ppo": ["max_wall_s=60"], "dqn": []}) == (
+        " Overrides (`--set`): ppo: `max_wall_s=60`."
+    )

@@ -10,8 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 import sim2real.envs as envs
+from sim2real.errors import ConfigError
 from sim2real.export import load_policy
 from sim2real.train import ALGOS, RunDir, resume
 
@@ -130,3 +132,19 @@ def test_subprocess_workers_train_the_same_policy_as_in_process_envs(
     np.testing.assert_allclose(
         load_policy(tmp_path / "dummy")(obs), load_policy(tmp_path / "subproc")(obs), atol=1e-6
     )
+
+
+def test_the_torch_device_is_the_cpu_unless_set_and_a_bad_one_is_named(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from sim2real.train.runner import TORCH_DEVICE_ENV, torch_device
+
+    monkeypatch.delenv(TORCH_DEVICE_ENV, raising=False)
+    assert torch_device() == "cpu"
+    monkeypatch.setenv(TORCH_DEVICE_ENV, "tpu9")
+    with pytest.raises(ConfigError, match="SIM2REAL_TORCH_DEVICE='tpu9' is not a torch device"):
+        torch_device()
+    if not torch.cuda.is_available():
+        monkeypatch.setenv(TORCH_DEVICE_ENV, "cuda")
+        with pytest.raises(ConfigError, match="torch sees no CUDA device"):
+            torch_device()
