@@ -117,6 +117,32 @@ class ModelIds:
         )
 
 
+# MuJoCo draws a geom in its material's rgba while the geom's own rgba is this default value.
+DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)
+
+
+def shown_rgba(
+    model: mujoco.MjModel,
+    geoms: np.ndarray,
+    geom_rgba: np.ndarray | None = None,
+    mat_rgba: np.ndarray | None = None,
+) -> np.ndarray:
+    """(k, 4) colour each geom is drawn in: its material's rgba while its own is the default.
+
+    Colour DR must jitter *this*: a jittered geom rgba leaves the default, so MuJoCo stops using
+    the material's colour, and a textured table whose material is white turned ~0.5 grey on every
+    draw (reach-pixels frames 30 % darker than the nominal scene, never as bright; a student
+    trained on them failed on the nominal scene, 2026-11-27). ``geom_rgba`` / ``mat_rgba``: the
+    arrays to read (a nominal snapshot's), the model's own by default."""
+    g = model.geom_rgba if geom_rgba is None else geom_rgba
+    m = model.mat_rgba if mat_rgba is None else mat_rgba
+    rgba = np.array(g[geoms], dtype=g.dtype)
+    mat = model.geom_matid[geoms]
+    use_mat = (mat >= 0) & np.all(rgba == DEFAULT_GEOM_RGBA, axis=1)
+    rgba[use_mat] = m[mat[use_mat]]
+    return rgba
+
+
 class ModelSnapshot:
     """Copies of the nominal values of ``TOUCHED_FIELDS``; ``restore`` is bit-exact."""
 

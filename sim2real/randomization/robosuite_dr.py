@@ -37,6 +37,7 @@ import numpy as np
 from sim2real.errors import ConfigError
 from sim2real.randomization import CATEGORIES, ModelIds, ModelSnapshot, Params
 from sim2real.randomization import object as object_dr
+from sim2real.randomization.base import shown_rgba
 from sim2real.randomization.config import DRConfig
 from sim2real.randomization.robosuite_compat import import_robosuite
 
@@ -48,7 +49,6 @@ from robosuite.utils.mjmod import (  # noqa: E402  (after the quiet import)
 )
 
 # MuJoCo draws a geom in its material's colour while the geom rgba is at this default.
-_DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)
 # How far the hand moves per radian at the shoulder of a Panda-sized arm: turns the rad-valued
 # command noise into metres for Cartesian (OSC) commands.
 LEVER_M = 0.5
@@ -109,15 +109,6 @@ class RobosuiteTargets:
                 [model.geom(g).id for g in object_visual_geoms], dtype=np.intp
             ),
         )
-
-
-def shown_rgba(model: mujoco.MjModel, geoms: np.ndarray) -> np.ndarray:
-    """(k, 4) colour each geom is drawn in: its material's rgba while its own is the default."""
-    rgba = model.geom_rgba[geoms].copy()
-    mat = model.geom_matid[geoms]
-    use_mat = (mat >= 0) & np.all(rgba == _DEFAULT_GEOM_RGBA, axis=1)
-    rgba[use_mat] = model.mat_rgba[mat[use_mat]]
-    return rgba
 
 
 class RobosuiteRandomizer:

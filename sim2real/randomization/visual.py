@@ -9,7 +9,14 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sim2real.randomization.base import ModelIds, ModelSnapshot, Params, PlanCache, as_index
+from sim2real.randomization.base import (
+    ModelIds,
+    ModelSnapshot,
+    Params,
+    PlanCache,
+    as_index,
+    shown_rgba,
+)
 from sim2real.randomization.config import Range
 
 
@@ -42,7 +49,8 @@ def apply_reference(
     diffuse = nominal["light_diffuse"][lights] * scale
     model.light_diffuse[lights] = np.minimum(np.maximum(diffuse, 0.0), 1.0)
     model.light_pos[lights] = nominal["light_pos"][lights] + params["light_pos_offset_m"]
-    rgba = nominal["geom_rgba"][geoms].copy()
+    # jitter the colour each geom is drawn in (its material's, see ``shown_rgba``)
+    rgba = shown_rgba(model, geoms, nominal["geom_rgba"], nominal["mat_rgba"])
     rgba[:, :3] = np.minimum(np.maximum(rgba[:, :3] + params["rgba_offset"], 0.0), 1.0)
     model.geom_rgba[geoms] = rgba
     model.cam_pos[cams] = nominal["cam_pos"][cams] + params["camera_pos_offset_m"]
@@ -76,7 +84,7 @@ class _Plan:
             cams=as_index(cams),
             diffuse=nominal["light_diffuse"][lights],
             light_pos=nominal["light_pos"][lights],
-            rgba=nominal["geom_rgba"][geoms],
+            rgba=shown_rgba(model, geoms, nominal["geom_rgba"], nominal["mat_rgba"]),
             cam_pos=nominal["cam_pos"][cams],
             fovy=nominal["cam_fovy"][cams],
             model_diffuse=model.light_diffuse,

@@ -76,3 +76,26 @@ def test_the_plan_follows_a_new_model() -> None:
     second.apply(second.sample(rng))
     assert first.model.body_quat.tobytes() == before.tobytes()
     assert second.model.body_quat.tobytes() != second.nominal["body_quat"].tobytes()
+
+
+def test_colour_dr_jitters_the_colour_a_textured_geom_is_drawn_in() -> None:
+    """The table is drawn in its (white, textured) material's colour while its own rgba is
+    MuJoCo's default; colour DR must stay near that colour, not replace it by the default grey."""
+    from sim2real import model as names
+
+    env = gym.make("Sim2Real/Arm3ReachPixels-v0", dr="default", image_size=48)
+    try:
+        m = env.unwrapped.model  # type: ignore[attr-defined]
+        table = m.geom(names.TABLE_GEOM).id
+        material = m.mat_rgba[m.geom_matid[table]].copy()
+        drawn = []
+        for seed in range(8):
+            env.reset(seed=seed)
+            rgba = m.geom_rgba[table]
+            drawn.append(rgba.copy())
+        drawn_rgb = np.array(drawn)[:, :3]
+        # within the preset's 0.15 colour jitter of the material's colour on every draw
+        assert np.all(np.abs(drawn_rgb - material[:3]) <= 0.15 + 1e-6)
+        assert not np.allclose(drawn_rgb, material[:3])  # and it does jitter
+    finally:
+        env.close()
