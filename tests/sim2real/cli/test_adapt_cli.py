@@ -47,7 +47,7 @@ def _tiny(out: Path, *extra: str) -> list[str]:
     # the pipeline, not the timing (as the deploy tests do)
     return [
         "adapt", "reach-ppo", "--plant", "moderate", "--out", str(out), "--episodes", "1",
-        "--kinematic-s", "6", "--finetune-steps", "2048", "--minutes", "2", "--watchdog-s", "2",
+        "--kinematic-s", "6", "--finetune-steps", "2048", "--minutes", "2", "--watchdog-s", "10",
         "--start-timeout", "60", "--json", *extra,
     ]  # fmt: skip
 

@@ -82,7 +82,7 @@ def test_sigterm_stops_a_mock_deployment_cleanly(
     proc = spawn(
         [sys.executable, "-m", "sim2real", "deploy", str(run_dir), "--backend", "mock",
          "--episodes", "1000", "--log", str(log), "--json", "-v",
-         "--watchdog-s", "2", "--start-timeout", "60"],  # judged: the signal, not the timing
+         "--watchdog-s", "10", "--start-timeout", "60"],  # judged: the signal, not the timing
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     assert proc.stderr is not None

@@ -65,7 +65,7 @@ def test_local_backend_writes_every_file(tmp_path: Path) -> None:
         assert p.read_bytes()[:4] == b"\x89PNG"
     results = json.loads(files["results"].read_text())
     assert [(j["algo"], j["seed"]) for j in results["jobs"]] == [
-        (a, s) for a in algos for s in (0, 1)
+        (a, s) for s in (0, 1) for a in algos
     ]
     for job in results["jobs"]:
         assert job["eval"]["episodes"] == 4 and job["steps"] >= 128

@@ -43,7 +43,7 @@ def test_mock_deployment_keeps_the_sim_success_of_the_same_policy(
     # timing (bench/deploy_mock.py holds the 20 Hz and watchdog targets).
     mock = _cli(
         "deploy", str(run_dir), "--backend", "mock", "--episodes", str(MOCK_EPISODES),
-        "--log", str(log), "--json", "--watchdog-s", "2", "--start-timeout", "60",
+        "--log", str(log), "--json", "--watchdog-s", "10", "--start-timeout", "60",
     )  # fmt: skip
     assert mock["episodes"] == MOCK_EPISODES and mock["stopped_early"] is None
     # Threshold derived from the sim success: 90 % of it, less two binomial standard errors of a

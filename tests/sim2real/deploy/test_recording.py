@@ -19,7 +19,7 @@ def test_a_mock_deployment_records_a_lerobot_dataset_with_both_cameras(
     args = [
         "deploy", "reach-ppo", "--backend", "mock", "--episodes", "2", "--json",
         "--record-dataset", str(root), "--log", str(tmp_path / "log.npz"),
-        "--watchdog-s", "2", "--start-timeout", "60",
+        "--watchdog-s", "10", "--start-timeout", "60",
     ]  # fmt: skip
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])
