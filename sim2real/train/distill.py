@@ -334,27 +334,20 @@ class Distill(OnPolicyAlgorithm):
         return float(np.mean(self._agreement(executed, labels)))
 
     def train(self) -> None:
-        if self.continuous:
-            self._train_continuous()
-            return
+        """Aggregate this rollout's labels, then ``gradient_steps`` minibatches of the imitation
+        loss (``_imitation_loss``) plus the auxiliary head's."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         agreement = self._aggregate()
-        losses, entropies, accs, aux_losses = [], [], [], []
+        losses, aux_losses = [], []
+        stats: dict[str, list[float]] = {}
         policy = self.policy
         assert isinstance(policy, AsymmetricActorCriticPolicy)
         for _ in range(self.gradient_steps):
             idx = np.random.randint(0, self._data_len, size=min(self.batch_size, self._data_len))
             obs = {k: th.as_tensor(v[idx], device=self.device) for k, v in self._data.items()}
-            target = th.as_tensor(self._labels[idx], device=self.device)
-            # get_distribution's own path, with the features kept for the auxiliary head.
             features = policy.actor_features(obs)
-            latent = policy.mlp_extractor.forward_actor(features)
-            dist = policy._get_action_dist_from_latent(latent)
-            ent = dist.entropy()
-            assert ent is not None  # a categorical distribution has one
-            entropy = ent.mean()
-            loss = -dist.log_prob(target).mean() - self.ent_coef * entropy
+            loss, batch = self._imitation_loss(policy, features, idx)
             if self.aux_coef and policy.aux_head is not None:
                 aux_target = th.as_tensor(self._aux[idx], device=self.device)
                 aux_loss = th.nn.functional.mse_loss(policy.aux_head(features), aux_target)
@@ -364,61 +357,49 @@ class Distill(OnPolicyAlgorithm):
             loss.backward()
             th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
             self.policy.optimizer.step()
-            with th.no_grad():
-                greedy = dist.get_actions(deterministic=True)
-                accs.append(float((greedy == target).float().mean()))
             losses.append(loss.item())
-            entropies.append(entropy.item())
+            for key, value in batch.items():
+                stats.setdefault(key, []).append(value)
         self._n_updates += self.gradient_steps
         log = self.logger
         log.record("train/distill_loss", float(np.mean(losses)))
         log.record("train/teacher_agreement", agreement)
-        log.record("train/batch_accuracy", float(np.mean(accs)))
-        log.record("train/entropy", float(np.mean(entropies)))
+        if self.continuous:
+            log.record("train/action_error", self._action_error)
+            log.record("train/std", th.exp(policy.log_std.detach()).mean().item())
+        for key, values in stats.items():
+            log.record(f"train/{key}", float(np.mean(values)))
         if aux_losses:
             log.record("train/aux_loss", float(np.mean(aux_losses)))
         log.record("train/dataset_size", self._data_len)
         log.record("train/n_updates", self._n_updates, exclude="tensorboard")
 
-    def _train_continuous(self) -> None:
-        """``train`` for a ``Box`` student: the squared error of the Gaussian's mean to the
-        teacher's action (see the class docstring), the auxiliary head as for ``Discrete``."""
-        self.policy.set_training_mode(True)
-        self._update_learning_rate(self.policy.optimizer)
-        agreement = self._aggregate()
-        losses, errors, accs, aux_losses = [], [], [], []
-        policy = self.policy
-        assert isinstance(policy, AsymmetricActorCriticPolicy)
-        for _ in range(self.gradient_steps):
-            idx = np.random.randint(0, self._data_len, size=min(self.batch_size, self._data_len))
-            obs = {k: th.as_tensor(v[idx], device=self.device) for k, v in self._data.items()}
-            target = th.as_tensor(self._labels[idx], device=self.device)
-            features = policy.actor_features(obs)
-            mean = policy.action_net(policy.mlp_extractor.forward_actor(features))
-            loss = th.nn.functional.mse_loss(mean, target)
-            if self.aux_coef and policy.aux_head is not None:
-                aux_target = th.as_tensor(self._aux[idx], device=self.device)
-                aux_loss = th.nn.functional.mse_loss(policy.aux_head(features), aux_target)
-                loss = loss + self.aux_coef * aux_loss
-                aux_losses.append(aux_loss.item())
-            self.policy.optimizer.zero_grad()
-            loss.backward()
-            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
-            self.policy.optimizer.step()
+    def _imitation_loss(
+        self, policy: AsymmetricActorCriticPolicy, features: th.Tensor, idx: np.ndarray
+    ) -> tuple[th.Tensor, dict[str, float]]:
+        """The student's loss against the teacher's labels ``idx`` and its batch statistics:
+        cross-entropy (less the entropy bonus) for ``Discrete``; for ``Box`` the squared error of
+        the Gaussian's mean (see the class docstring)."""
+        target = th.as_tensor(self._labels[idx], device=self.device)
+        latent = policy.mlp_extractor.forward_actor(features)
+        if self.continuous:
+            mean = policy.action_net(latent)
             with th.no_grad():
                 greedy, labels = mean.detach().cpu().numpy(), self._labels[idx]
-                errors.append(float(np.mean(np.abs(self._clip(greedy) - labels))))
-                accs.append(float(np.mean(self._agreement(greedy, labels))))
-            losses.append(loss.item())
-        self._n_updates += self.gradient_steps
-        log = self.logger
-        log.record("train/distill_loss", float(np.mean(losses)))
-        log.record("train/teacher_agreement", agreement)
-        log.record("train/action_error", self._action_error)
-        log.record("train/batch_accuracy", float(np.mean(accs)))
-        log.record("train/batch_action_error", float(np.mean(errors)))
-        log.record("train/std", th.exp(policy.log_std.detach()).mean().item())
-        if aux_losses:
-            log.record("train/aux_loss", float(np.mean(aux_losses)))
-        log.record("train/dataset_size", self._data_len)
-        log.record("train/n_updates", self._n_updates, exclude="tensorboard")
+                batch = {
+                    "batch_accuracy": float(np.mean(self._agreement(greedy, labels))),
+                    "batch_action_error": float(np.mean(np.abs(self._clip(greedy) - labels))),
+                }
+            return th.nn.functional.mse_loss(mean, target), batch
+        # get_distribution's own path, with the features kept for the auxiliary head.
+        dist = policy._get_action_dist_from_latent(latent)
+        ent = dist.entropy()
+        assert ent is not None  # a categorical distribution has one
+        entropy = ent.mean()
+        with th.no_grad():
+            greedy_t = dist.get_actions(deterministic=True)
+            batch = {
+                "batch_accuracy": float((greedy_t == target).float().mean()),
+                "entropy": entropy.item(),
+            }
+        return -dist.log_prob(target).mean() - self.ent_coef * entropy, batch
