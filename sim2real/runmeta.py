@@ -23,7 +23,7 @@ from sim2real.errors import Sim2RealError, UnknownNameError
 
 FORMAT = 2  # the format this version writes
 OPTIONAL_FIELDS: frozenset[str] = frozenset(
-    {"exported_from", "export_format", "note", "adapted_from"}
+    {"exported_from", "export_format", "note", "adapted_from", "obs_key_shapes"}
 )
 READABLE_FORMATS: tuple[int, ...] = (1, 2)
 
@@ -102,6 +102,9 @@ class RunMeta:
     export_format: str = ""  # an exported policy: "onnx" or "numpy"
     note: str = ""
     adapted_from: Mapping[str, Any] | None = None  # a fine-tune (``sim2real adapt``): its source
+    # dict observations: each key's own shape (an image's rows, columns and channels), so a flat
+    # row unflattens to what the env gave; None in records written before it
+    obs_key_shapes: tuple[tuple[int, ...], ...] | None = None
     source: str = field(default="", compare=False)
 
     # ---- derived ------------------------------------------------------------------------------
@@ -288,6 +291,7 @@ CHECKS: dict[str, Check] = {
     "export_format": _str,
     "note": _str,
     "adapted_from": _opt(_mapping),
+    "obs_key_shapes": _opt(_tuple_of(_tuple_of(_int, "integers"), "shapes")),
 }
 
 

@@ -4,8 +4,8 @@ and one action head per action space (Box: clip or unscale; Discrete: argmax).""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -82,21 +82,34 @@ def _conv2d(m: th.nn.Conv2d) -> Op:
 @dataclass(frozen=True)
 class Pixels:
     """The exported program's input (the flat observation of ``obs_shape``) and SB3's image
-    preprocessing: channels-last frames are transposed, uint8 values divided by 255."""
+    preprocessing: channels-last frames are transposed, uint8 values divided by 255. A dict
+    observation's keys lie side by side in it (``keys``: key → its columns and own shape), and
+    ``normalize(keys)`` gives the VecNormalize ops for those keys' columns alone."""
 
     obs_shape: tuple[int, ...]
     divisor: float
+    keys: Mapping[str, tuple[int, int, tuple[int, ...]]] = field(default_factory=dict)
+    normalize: Callable[[tuple[str, ...]], list[Op]] = lambda keys: []
 
-    def image_op(self, space: Any) -> Op:
-        """The ``image`` op that turns the observation into the (C, H, W) image ``space``."""
+    def image_op(self, space: Any, shape: tuple[int, ...] | None = None) -> Op:
+        """The ``image`` op that turns the observation (or the part of it of ``shape``) into
+        the (C, H, W) image ``space``."""
         c, h, w = (int(n) for n in space.shape)
+        own = self.obs_shape if shape is None else shape
         for name, layout in IMAGE_LAYOUTS.items():
-            if layout.shape((c, h, w)) == self.obs_shape:
+            if layout.shape((c, h, w)) == own:
                 return {"op": "image", "layout": name, "shape": [c, h, w], "divisor": self.divisor}
         raise PolicyError(
-            f"the policy's observation shape {self.obs_shape} is not the {(c, h, w)} image its "
+            f"the policy's observation shape {own} is not the {(c, h, w)} image its "
             "CNN reads, channels first or last"
         )
+
+    def columns(self, key: str) -> tuple[int, int, tuple[int, ...]]:
+        if key not in self.keys:
+            raise PolicyError(
+                f"the policy reads key {key!r}, not among its record's {list(self.keys)}"
+            )
+        return self.keys[key]
 
 
 FeatureOps = Callable[[Any, Pixels], list[Op]]
@@ -139,14 +152,31 @@ def _keypoint_cnn(m: Any, pixels: Pixels) -> list[Op]:
 
 
 def _pixel_actor(m: Any, pixels: Pixels) -> list[Op]:
-    """``sim2real.train.augment.PixelActorExtractor``: its CNN alone (the random shift runs only
-    in training mode), when the image is the whole observation."""
-    if m.extra_keys:
-        raise PolicyError(
-            f"cannot export a pixel actor that also reads {list(m.extra_keys)} beside the image: "
-            "the exported program takes the image alone; load its run dir instead"
-        )
-    return _features(m.cnn, pixels)
+    """``sim2real.train.augment.PixelActorExtractor``: its CNN (the random shift runs only in
+    training mode), then its proprioceptive keys flattened beside the features. A dict input is
+    kept in slot ``obs``; the keys beside the image, normalised as VecNormalize did, in slot
+    ``extra``, so the image never passes through the normaliser's clip."""
+    if not m.extra_keys:
+        return _features(m.cnn, pixels)
+    start, stop, shape = pixels.columns(m.image_key)
+    ops: list[Op] = [{"op": "store", "name": "obs"}]
+    width = 0
+    for i, key in enumerate(m.extra_keys):
+        k_start, k_stop, _ = pixels.columns(key)
+        kind = "append" if i else "load"
+        ops.append({"op": kind, "name": "obs", "start": k_start, "stop": k_stop})
+        width += k_stop - k_start
+    ops += pixels.normalize(tuple(m.extra_keys))
+    ops += [
+        {"op": "store", "name": "extra"},
+        {"op": "load", "name": "obs", "start": start, "stop": stop},
+    ]
+    image = replace(pixels, obs_shape=shape, keys={})
+    return [
+        *ops,
+        *_features(m.cnn, image),
+        {"op": "append", "name": "extra", "start": 0, "stop": width},
+    ]
 
 
 def _qualname(cls: type) -> str:
@@ -176,7 +206,12 @@ def _features(extractor: th.nn.Module, pixels: Pixels) -> list[Op]:
 
 def _extract(policy: Any, extractor: th.nn.Module, tp: TorchPolicy) -> list[Op]:
     divisor = 255.0 if policy.normalize_images else 1.0
-    return _features(extractor, Pixels(tuple(tp.meta.obs_shape), divisor))
+    keys, start = {}, 0
+    for key, size in zip(tp.meta.obs_keys or (), tp.meta.obs_key_sizes or (), strict=True):
+        keys[key] = (start, start + size, tp.key_shapes[key])
+        start += size
+    pixels = Pixels(tuple(tp.meta.obs_shape), divisor, keys, lambda ks: _normalizer(tp, ks))
+    return _features(extractor, pixels)
 
 
 # ---- action heads: features → the env's action ----------------------------------------------
@@ -254,7 +289,9 @@ EXTRACTORS: tuple[tuple[type, Callable[[Any, TorchPolicy], list[Op]]], ...] = (
 )
 
 
-def _normalizer(tp: TorchPolicy) -> list[Op]:
+def _normalizer(tp: TorchPolicy, only: tuple[str, ...] | None = None) -> list[Op]:
+    """VecNormalize as one ``normalize`` op: over the whole flat observation, or over the
+    columns of the keys ``only`` (in that order) where a program reads them apart."""
     vn = tp.vecnormalize
     if vn is None or not vn.norm_obs:
         return []
@@ -266,7 +303,9 @@ def _normalizer(tp: TorchPolicy) -> list[Op]:
     else:
         means, stds = [], []
         keys = set(vn.norm_obs_keys or [])
-        for key, size in zip(m.obs_keys, m.obs_key_sizes or (), strict=True):
+        sizes = dict(zip(m.obs_keys, m.obs_key_sizes or (), strict=True))
+        for key in m.obs_keys if only is None else only:
+            size = sizes[key]
             if key in keys:
                 rms = vn.obs_rms[key]
                 means.append(rms.mean.reshape(-1))
@@ -286,10 +325,15 @@ def _normalizer(tp: TorchPolicy) -> list[Op]:
 
 
 def build_program(tp: TorchPolicy) -> list[Op]:
+    """The policy's ops, VecNormalize first, unless the program reads its input by parts
+    (it begins with a ``store``) and has normalised the parts that need it itself."""
     policy = tp.model.policy
     for cls, extract in EXTRACTORS:
         if isinstance(policy, cls):
-            return _normalizer(tp) + extract(policy, tp)
+            ops = extract(policy, tp)
+            if ops and ops[0]["op"] == "store":
+                return ops
+            return _normalizer(tp) + ops
     raise PolicyError(f"cannot export policy class {type(policy).__name__}")
 
 

@@ -16,7 +16,13 @@ import numpy as np
 
 from hardware.atomic import atomic_write_bytes
 from sim2real.export.policy import Policy, PolicyError, PolicyMeta, meta_from_json
-from sim2real.export.program import IMAGE_LAYOUTS, Op, score_program, validate_program
+from sim2real.export.program import (
+    IMAGE_LAYOUTS,
+    SLOT_OPS,
+    Op,
+    score_program,
+    validate_program,
+)
 
 OPSET = 17
 IR_VERSION = 8  # onnxruntime >= 1.10 reads it: old builds on a Raspberry Pi too
@@ -169,6 +175,24 @@ ONNX_OPS: dict[str, Callable[[_GraphBuilder, str, Op], str]] = {
 }
 
 
+def _columns(g: _GraphBuilder, slot: str, op: Op) -> str:
+    start = g.const("start", np.array([int(op["start"])], np.int64))
+    stop = g.const("stop", np.array([int(op["stop"])], np.int64))
+    return g.node("Slice", [slot, start, stop, g.const("axis", np.array([1], np.int64))], "cols")
+
+
+def _slot_op(g: _GraphBuilder, x: str, op: Op, slots: dict[str, str]) -> str:
+    """``program.SLOT_OPS`` in the graph: a slot is the name of the tensor stored in it."""
+    kind = op["op"]
+    if kind == "store":
+        slots[op["name"]] = x
+        return x
+    part = _columns(g, slots[op["name"]], op)
+    if kind == "load":
+        return part
+    return g.node("Concat", [x, part], "appended", axis=1)
+
+
 def save_onnx(path: str | Path, program: list[Op], meta: PolicyMeta) -> Path:
     import onnx
     from onnx import TensorProto, helper
@@ -176,6 +200,7 @@ def save_onnx(path: str | Path, program: list[Op], meta: PolicyMeta) -> Path:
     validate_program(program, meta.source)
     g = _GraphBuilder()
     x = INPUT
+    slots: dict[str, str] = {}
     scoring = score_program(program)
     scores_at = -1 if scoring is None else len(scoring)
     outputs = [helper.make_tensor_value_info(OUTPUT, TensorProto.FLOAT, ["batch", meta.action_dim])]
@@ -183,7 +208,8 @@ def save_onnx(path: str | Path, program: list[Op], meta: PolicyMeta) -> Path:
         if i == scores_at:  # the scores the final argmax reads
             g.nodes.append(helper.make_node("Identity", [x], [SCORES], name=SCORES))
             outputs.append(helper.make_tensor_value_info(SCORES, TensorProto.FLOAT, ["batch", "n"]))
-        x = ONNX_OPS[op["op"]](g, x, op)
+        kind = op["op"]
+        x = _slot_op(g, x, op, slots) if kind in SLOT_OPS else ONNX_OPS[kind](g, x, op)
     g.nodes.append(helper.make_node("Identity", [x], [OUTPUT], name=OUTPUT))
     graph = helper.make_graph(
         g.nodes,

@@ -21,6 +21,14 @@ or, between ``image`` and ``flatten``, (n, channels, height, width). Ops::
     flatten    (n, ...) → (n, -1), C-major like torch
     argmax     argmax(x) as a float32 (n, 1) index         (Discrete envs: the action)
 
+A dict observation (an image beside proprioception) is one flat input too, its keys side by side
+(``meta.obs_keys``). Three slot ops let the linear list read its parts: each names a slot, and
+``load`` / ``append`` take the columns [start, stop) of it::
+
+    store      slots[name] = x; x passes on unchanged
+    load       x = slots[name][:, start:stop]
+    append     x = concat(x, slots[name][:, start:stop])  (features beside the proprioception)
+
 ``argmax`` and ``argmax_table`` pick the action from per-action scores (logits or Q-values):
 ``SELECT_OPS``. A program ending in one also exposes those scores, for parity checks.
 """
@@ -192,10 +200,34 @@ CHOICES: dict[str, tuple[str, Mapping[str, Any]]] = {
 }
 
 
+def _store(x: np.ndarray, op: Op, slots: dict[str, np.ndarray]) -> np.ndarray:
+    slots[op["name"]] = x
+    return x
+
+
+def _load(x: np.ndarray, op: Op, slots: dict[str, np.ndarray]) -> np.ndarray:
+    return slots[op["name"]][:, int(op["start"]) : int(op["stop"])]
+
+
+def _append(x: np.ndarray, op: Op, slots: dict[str, np.ndarray]) -> np.ndarray:
+    part = slots[op["name"]][:, int(op["start"]) : int(op["stop"])]
+    return np.concatenate((x, part), axis=1)
+
+
+# Ops that also read or write the named slots (a dict observation's parts).
+SLOT_OPS: dict[str, Callable[[np.ndarray, Op, dict[str, np.ndarray]], np.ndarray]] = {
+    "store": _store,
+    "load": _load,
+    "append": _append,
+}
+
+
 def run_program(program: list[Op], x: np.ndarray) -> np.ndarray:
     y = np.asarray(x, dtype=np.float32).reshape(len(x), -1)
+    slots: dict[str, np.ndarray] = {}
     for op in program:
-        y = OPS[op["op"]](y, op)
+        kind = op["op"]
+        y = SLOT_OPS[kind](y, op, slots) if kind in SLOT_OPS else OPS[kind](y, op)
     return y.astype(np.float32)
 
 
@@ -207,10 +239,18 @@ def score_program(program: list[Op]) -> list[Op] | None:
 
 
 def validate_program(program: list[Op], source: str) -> None:
+    stored: set[str] = set()
     for i, op in enumerate(program):
         kind = op.get("op")
-        if kind not in OPS:
-            raise PolicyError(f"policy {source!r}: op {i} {kind!r} unknown; valid: {sorted(OPS)}")
+        if kind not in OPS and kind not in SLOT_OPS:
+            names = sorted({*OPS, *SLOT_OPS})
+            raise PolicyError(f"policy {source!r}: op {i} {kind!r} unknown; valid: {names}")
+        if kind == "store":
+            stored.add(op.get("name", ""))
+        elif kind in SLOT_OPS and op.get("name") not in stored:
+            raise PolicyError(
+                f"policy {source!r}: op {i} {kind!r} reads slot {op.get('name')!r} before a store"
+            )
         if kind in CHOICES:
             key, valid = CHOICES[kind]
             if op.get(key) not in valid:

@@ -21,13 +21,34 @@ class TorchPolicy(Policy):
         self.meta = meta
         self.table = None if table is None else np.asarray(table, dtype=np.float32)
 
+    @property
+    def key_shapes(self) -> dict[str, tuple[int, ...]]:
+        """Each key of a dict observation in the env's own shape (empty for an array one).
+        Records written before ``obs_key_shapes`` take the model's space, and an image SB3 read
+        channels first is taken as the channels-last frame it transposed: every sim2real pixel
+        env renders channels last."""
+        m = self.meta
+        if m.obs_keys is None:
+            return {}
+        if m.obs_key_shapes is not None:
+            return dict(zip(m.obs_keys, m.obs_key_shapes, strict=True))
+        space = self.model.observation_space.spaces
+        out = {}
+        for key in m.obs_keys:
+            shape = tuple(int(n) for n in space[key].shape)
+            if len(shape) == 3 and shape[0] in (1, 3, 4) and shape[-1] not in (1, 3, 4):
+                shape = (shape[1], shape[2], shape[0])
+            out[key] = shape
+        return out
+
     def unflatten(self, batch: np.ndarray) -> Any:
         m = self.meta
         if m.obs_keys is None or m.obs_key_sizes is None:
             return batch
+        shapes = self.key_shapes
         out, start = {}, 0
         for key, size in zip(m.obs_keys, m.obs_key_sizes, strict=True):
-            out[key] = batch[:, start : start + size]
+            out[key] = batch[:, start : start + size].reshape(len(batch), *shapes[key])
             start += size
         return out
 

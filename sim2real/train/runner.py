@@ -156,11 +156,12 @@ def _obs_description(env: gym.Env[Any, Any]) -> dict[str, Any]:
     space = env.observation_space
     actions = base.action_space
     discrete = isinstance(actions, gym.spaces.Discrete)
-    keys = sizes = None
+    keys = sizes = shapes = None
     shape = tuple(int(n) for n in space.shape or ())
     if isinstance(space, gym.spaces.Dict):  # policies see the keys flattened in sorted order
         keys = tuple(space.spaces)
-        sizes = tuple(int(np.prod(space.spaces[k].shape or ())) for k in keys)
+        shapes = tuple(tuple(int(n) for n in space.spaces[k].shape or ()) for k in keys)
+        sizes = tuple(int(np.prod(s)) for s in shapes)
         shape = (sum(sizes),)
     task = getattr(base, "task", None)
     return {
@@ -170,6 +171,7 @@ def _obs_description(env: gym.Env[Any, Any]) -> dict[str, Any]:
         "obs_shape": shape,
         "obs_keys": keys,
         "obs_key_sizes": sizes,
+        "obs_key_shapes": shapes,
         # A Discrete env's policy outputs one index; a Box env's policy one value per dimension.
         "action_dim": 1 if discrete else int(np.prod(actions.shape or (1,))),
         "n_actions": int(actions.n) if discrete else None,  # type: ignore[attr-defined]

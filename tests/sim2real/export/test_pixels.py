@@ -1,7 +1,7 @@
 """Pixel actors export: each image op computes what torch does in numpy and in onnxruntime, whole
 keypoint and NatureCNN actors (random weights, no training) choose torch's action on every
-frame, the discrete action reaches the Kuka env as an index, and what stays unsupported is
-refused in one line."""
+frame, an actor that reads proprioception beside the frame reads both apart, the discrete action
+reaches the Kuka env as an index, and what stays unsupported is refused in one line."""
 
 from __future__ import annotations
 
@@ -302,11 +302,71 @@ def test_parity_report_counts_disagreements_and_the_score_gap(tmp_path: Path) ->
 
 
 # ---- what stays unsupported ---------------------------------------------------------------------
-def test_pixel_actor_with_proprioception_is_refused_in_one_line() -> None:
-    policy = _asymmetric("keypoint_cnn", joint_pos=gym.spaces.Box(-3, 3, (3,), np.float32))
-    with pytest.raises(PolicyError, match=r"also reads \['joint_pos'\] beside the image") as info:
-        build_program(_torch_policy(policy))
-    assert "\n" not in str(info.value)
+class _FrameAndJoints(gym.Env[dict[str, np.ndarray], np.ndarray]):
+    """The spaces of a pixel env with proprioception, for a real VecNormalize to wrap."""
+
+    observation_space = gym.spaces.Dict(
+        {
+            PIXELS_KEY: gym.spaces.Box(0, 255, FRAME, np.uint8),
+            "proprio": gym.spaces.Box(-np.inf, np.inf, (9,), np.float32),
+        }
+    )
+    action_space = gym.spaces.Box(-1, 1, (3,), np.float32)
+
+
+@pytest.mark.parametrize("recorded_shapes", [True, False])
+def test_pixel_actor_with_proprioception_exports_the_image_and_its_keys_apart(
+    recorded_shapes: bool, tmp_path: Path
+) -> None:
+    """The frame and the (normalised) proprioception are read as separate column ranges of the
+    flat input, the normaliser's clip never touches the pixels, and the continuous action is
+    torch's on every observation, whether the record names each key's shape or predates it."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from sim2real.train.asymmetric import AsymmetricActorCriticPolicy
+
+    th.manual_seed(0)
+    proprio = gym.spaces.Box(-np.inf, np.inf, (9,), np.float32)
+    kwargs = resolve_policy_kwargs({"features_extractor": "keypoint_cnn"}, 2, pixel_actor=True)
+    space = gym.spaces.Dict({PIXELS_KEY: CHW, "proprio": proprio, PRIVILEGED_KEY: PRIVILEGED})
+    policy = AsymmetricActorCriticPolicy(
+        space, _FrameAndJoints.action_space, lambda _: 1e-3, **kwargs
+    )
+    vn = VecNormalize(DummyVecEnv([_FrameAndJoints]), norm_obs_keys=["proprio"], clip_obs=5.0)
+    vn.obs_rms["proprio"].mean = np.linspace(-1, 1, 9)
+    vn.obs_rms["proprio"].var = np.linspace(0.5, 2, 9)
+    size = int(np.prod(FRAME))
+    meta = _meta(
+        (size + 9,),
+        3,
+        obs_keys=(PIXELS_KEY, "proprio"),
+        obs_key_sizes=(size, 9),
+        obs_key_shapes=(FRAME, (9,)) if recorded_shapes else None,
+    )
+    model = SimpleNamespace(policy=policy, predict=policy.predict, observation_space=space)
+    tp = TorchPolicy(model, vn, meta, None)
+    obs = {
+        PIXELS_KEY: _frames(32),
+        "proprio": np.random.default_rng(1).normal(0, 8, (32, 9)).astype(np.float32),
+    }
+    want = tp(obs)
+    program = build_program(tp)
+    assert [op["op"] for op in program[:2]] == ["store", "load"]
+    (norm,) = [op for op in program if op["op"] == "normalize"]
+    assert norm["mean"].shape == (9,)  # the proprioception's columns alone
+    assert program[-3]["op"] == "append" and program[-1]["op"] == "clip"
+    for name, exported in _exported(program, meta, tmp_path).items():
+        np.testing.assert_allclose(exported(obs), want, atol=1e-5, err_msg=name)
+    # the proprioception matters: clipped by the normaliser, it moves the action
+    moved = tp({**obs, "proprio": obs["proprio"] * 0})
+    assert np.abs(moved - want).max() > 1e-3
+
+
+def test_a_slot_read_before_its_store_is_refused(tmp_path: Path) -> None:
+    program: list[Op] = [{"op": "load", "name": "obs", "start": 0, "stop": 3}]
+    with pytest.raises(PolicyError, match=r"op 0 'load' reads slot 'obs' before a store"):
+        FORMATS["numpy"].save(tmp_path / "p.npz", program, _meta((3,), 3))
+        load_policy(tmp_path / "p.npz")
 
 
 def test_sb3_combined_extractor_with_an_image_is_refused() -> None:

@@ -19,7 +19,7 @@ from stable_baselines3.common.logger import KVWriter, Logger
 import sim2real.envs as envs
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.evaluate import EvalTarget, evaluate
-from sim2real.export import load_policy
+from sim2real.export import export_policy, load_policy
 from sim2real.observation import PIXELS_KEY, PROPRIO_FIELDS, PROPRIO_KEY
 from sim2real.train import ALGOS, RunDir, resolve_config, train
 from sim2real.train.augment import PRIVILEGED_KEY
@@ -180,3 +180,12 @@ def test_the_preset_trains_in_the_envs_own_actions_and_evaluates_from_its_run_di
         env.close()
     result = evaluate(EvalTarget.load(run_dir), episodes=2, dr="none")
     assert result["episodes"] == 2 and result["algo"] == "distill"
+    assert config["obs_key_shapes"] == [[48, 48, 3], [9]]  # joint_pos, joint_target, prev_action
+
+    # Exported (the image and the proprioception read apart), it acts as the run does on the
+    # env's frames, and evaluates from the file alone.
+    for fmt, suffix in (("onnx", ".onnx"), ("numpy", ".npz")):
+        exported = load_policy(export_policy(run_dir, fmt, tmp_path / f"reach{suffix}"))
+        np.testing.assert_allclose(exported(batch), expect, atol=1e-5, err_msg=fmt)
+    result = evaluate(EvalTarget.load(tmp_path / "reach.onnx"), episodes=2, dr="none")
+    assert result["episodes"] == 2 and result["env_id"] == config["env_id"]
