@@ -67,7 +67,7 @@ class Policy(ABC):
             if missing:
                 raise PolicyError(f"observation lacks keys {missing}; expected {list(m.obs_keys)}")
             parts = [np.asarray(obs[k], dtype=np.float32) for k in m.obs_keys]
-            single = parts[0].ndim == 1
+            single = _single(parts[0], m, 0)
             flat = np.concatenate([p.reshape(1 if single else len(p), -1) for p in parts], axis=1)
         else:
             arr = np.asarray(obs)
@@ -81,6 +81,16 @@ class Policy(ABC):
         if not np.all(np.isfinite(flat)):
             raise PolicyError("observation contains NaN or inf")
         return flat, single
+
+
+def _single(part: np.ndarray, meta: PolicyMeta, i: int) -> bool:
+    """Whether a dict observation's key ``i`` holds one observation, not a batch: its own shape
+    (an image is (H, W, C), not (n, H, W, C)), or, in a record that predates the shapes, its
+    size, with a leading axis of one read as a batch of one."""
+    if meta.obs_key_shapes is not None:
+        return part.shape == tuple(meta.obs_key_shapes[i])
+    size = (meta.obs_key_sizes or ())[i]
+    return part.size == size and not (part.ndim >= 2 and part.shape[0] == 1)
 
 
 # ---- loading ----------------------------------------------------------------------------------

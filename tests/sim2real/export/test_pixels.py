@@ -355,8 +355,10 @@ def test_pixel_actor_with_proprioception_exports_the_image_and_its_keys_apart(
     (norm,) = [op for op in program if op["op"] == "normalize"]
     assert norm["mean"].shape == (9,)  # the proprioception's columns alone
     assert program[-3]["op"] == "append" and program[-1]["op"] == "clip"
+    one = {k: v[0] for k, v in obs.items()}  # one observation: the frame is (H, W, C)
     for name, exported in _exported(program, meta, tmp_path).items():
         np.testing.assert_allclose(exported(obs), want, atol=1e-5, err_msg=name)
+        np.testing.assert_allclose(exported(one), want[0], atol=1e-5, err_msg=name)
     # the proprioception matters: clipped by the normaliser, it moves the action
     moved = tp({**obs, "proprio": obs["proprio"] * 0})
     assert np.abs(moved - want).max() > 1e-3
