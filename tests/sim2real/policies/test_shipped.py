@@ -17,15 +17,19 @@ from sim2real.errors import ConfigError
 from sim2real.export.policy import load_policy
 from sim2real.policies import resolve_policy, shipped
 
+PIXEL_REACH = "reach-pixels-distill"
+
 
 def test_every_shipped_arm_policy_fits_the_shipped_arm_and_its_task_contract() -> None:
     ships = shipped()
     assert {"reach-ppo", "reach-ddpg"} <= set(ships)
     spec = load_spec()
     arm = {n: s for n, s in ships.items() if s.task in env_table.DEPLOY_CONTRACTS}
-    assert {"reach-ppo", "pick-ppo", "trace-ppo"} <= set(arm)
+    assert {"reach-ppo", "pick-ppo", "trace-ppo", PIXEL_REACH} <= set(arm)
     for name, ship in arm.items():
         policy = load_policy(name)  # by name
+        if policy.meta.obs_mode == "pixels":  # deployed from camera frames: the test below
+            continue
         policy.meta.check_spec(spec.fingerprint())
         io = policy_io(spec, policy.meta)  # layout checked field by field
         assert io.task == ship.task, name
@@ -54,6 +58,25 @@ def test_a_shipped_pixel_policy_acts_on_its_envs_frames_and_refuses_to_deploy() 
     finally:
         env.close()
     with pytest.raises(ConfigError, match="kuka-distill.onnx.*no deploy contract"):
+        policy_io(load_spec(), policy.meta)
+
+
+def test_the_shipped_arm_pixel_student_reaches_from_frames_and_joints_and_refuses_to_deploy() -> (
+    None
+):
+    """The reach student acts on the env's own dict observation (the 84 px frame beside the
+    joint readings) from its ONNX file alone, evaluates by name, and the state deploy loop
+    refuses it in one line."""
+    from sim2real.evaluate import EvalTarget, evaluate
+
+    ship = shipped()[PIXEL_REACH]
+    assert ship.path.suffix == ".onnx" and ship.path.stat().st_size < 5_000_000
+    policy = load_policy(PIXEL_REACH)
+    assert policy.meta.obs_keys == ("pixels", "proprio")
+    result = evaluate(EvalTarget.load(PIXEL_REACH), episodes=2, dr="none")
+    assert result["episodes"] == 2 and result["env_id"] == ship.env_id
+    assert 0.0 <= result["median_final_distance_m"] < 0.5
+    with pytest.raises(ConfigError, match="observes pixels"):
         policy_io(load_spec(), policy.meta)
 
 
