@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
@@ -60,7 +61,8 @@ class RunMeta:
     """
 
     # Required in the constructor: what every check needs. The defaults below only make
-    # small records easy to build (tests); ``from_dict`` requires every field but the last four.
+    # small records easy to build (tests); ``from_dict`` requires every field but those in
+    # ``OPTIONAL_FIELDS``.
     env_id: str
     algo: str
     dr: str  # the DR preset's name
@@ -138,12 +140,32 @@ class RunMeta:
             )
 
     # ---- the one writer and the one reader ---------------------------------------------------
+    def __post_init__(self) -> None:
+        """A dict observation's keys, sizes and shapes must describe the same columns: every
+        reader slices the flat observation by them."""
+        keys, sizes, shapes = self.obs_keys, self.obs_key_sizes, self.obs_key_shapes
+        if keys is None:
+            if sizes is not None or shapes is not None:
+                raise MetaError(f"{self.source or 'record'}: obs_key_sizes/shapes without obs_keys")
+            return
+        if sizes is None or len(sizes) != len(keys):
+            raise MetaError(
+                f"{self.source or 'record'}: obs_key_sizes {sizes} do not match obs_keys {keys}"
+            )
+        if shapes is not None and [math.prod(s) for s in shapes] != list(sizes):
+            raise MetaError(
+                f"{self.source or 'record'}: obs_key_shapes {shapes} do not match "
+                f"obs_key_sizes {sizes}"
+            )
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready, with ``format``; ``source`` is not written."""
+        """JSON-ready, with ``format``; ``source`` is not written, nor ``obs_key_shapes`` where
+        there is none (a reader from before that field still reads the record)."""
         out: dict[str, Any] = {"format": FORMAT}
         for f in fields(self):
-            if f.name != "source":
-                out[f.name] = _plain(getattr(self, f.name))
+            if f.name == "source" or (f.name == "obs_key_shapes" and self.obs_key_shapes is None):
+                continue
+            out[f.name] = _plain(getattr(self, f.name))
         return out
 
     def to_json(self) -> str:

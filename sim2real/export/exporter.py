@@ -5,7 +5,7 @@ and one action head per action space (Box: clip or unscale; Discrete: argmax).""
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -88,8 +88,8 @@ class Pixels:
 
     obs_shape: tuple[int, ...]
     divisor: float
-    keys: Mapping[str, tuple[int, int, tuple[int, ...]]] = field(default_factory=dict)
-    normalize: Callable[[tuple[str, ...]], list[Op]] = lambda keys: []
+    keys: Mapping[str, tuple[int, int, tuple[int, ...]]]
+    normalize: Callable[[tuple[str, ...]], list[Op]]
 
     def image_op(self, space: Any, shape: tuple[int, ...] | None = None) -> Op:
         """The ``image`` op that turns the observation (or the part of it of ``shape``) into
@@ -105,6 +105,8 @@ class Pixels:
         )
 
     def columns(self, key: str) -> tuple[int, int, tuple[int, ...]]:
+        """(start, stop, own shape) of a key the policy reads: a key its record lacks would
+        otherwise be read from the wrong columns."""
         if key not in self.keys:
             raise PolicyError(
                 f"the policy reads key {key!r}, not among its record's {list(self.keys)}"
@@ -206,9 +208,9 @@ def _features(extractor: th.nn.Module, pixels: Pixels) -> list[Op]:
 
 def _extract(policy: Any, extractor: th.nn.Module, tp: TorchPolicy) -> list[Op]:
     divisor = 255.0 if policy.normalize_images else 1.0
-    keys, start = {}, 0
+    keys, start, shapes = {}, 0, tp.key_shapes
     for key, size in zip(tp.meta.obs_keys or (), tp.meta.obs_key_sizes or (), strict=True):
-        keys[key] = (start, start + size, tp.key_shapes[key])
+        keys[key] = (start, start + size, shapes[key])
         start += size
     pixels = Pixels(tuple(tp.meta.obs_shape), divisor, keys, lambda ks: _normalizer(tp, ks))
     return _features(extractor, pixels)
@@ -304,6 +306,11 @@ def _normalizer(tp: TorchPolicy, only: tuple[str, ...] | None = None) -> list[Op
         means, stds = [], []
         keys = set(vn.norm_obs_keys or [])
         sizes = dict(zip(m.obs_keys, m.obs_key_sizes or (), strict=True))
+        raw = sorted(set(only or ()) - keys)
+        if raw:  # the op's clip would touch them, where VecNormalize passes them through
+            raise PolicyError(
+                f"cannot export keys {raw} beside an image that VecNormalize leaves raw"
+            )
         for key in m.obs_keys if only is None else only:
             size = sizes[key]
             if key in keys:
@@ -342,6 +349,9 @@ def export_trained(tp: TorchPolicy, fmt: str, out: str | Path, source: str = "")
     saver = get_format(fmt).save
     program = build_program(tp)
     meta = replace(tp.meta, exported_from=source, export_format=fmt, source=str(out))
+    if meta.obs_keys is not None:  # each key's own shape, also where the run's record predates it
+        shapes = tp.key_shapes
+        meta = replace(meta, obs_key_shapes=tuple(shapes[k] for k in meta.obs_keys))
     return saver(out, program, meta)
 
 

@@ -181,16 +181,25 @@ def _columns(g: _GraphBuilder, slot: str, op: Op) -> str:
     return g.node("Slice", [slot, start, stop, g.const("axis", np.array([1], np.int64))], "cols")
 
 
-def _slot_op(g: _GraphBuilder, x: str, op: Op, slots: dict[str, str]) -> str:
-    """``program.SLOT_OPS`` in the graph: a slot is the name of the tensor stored in it."""
-    kind = op["op"]
-    if kind == "store":
-        slots[op["name"]] = x
-        return x
-    part = _columns(g, slots[op["name"]], op)
-    if kind == "load":
-        return part
-    return g.node("Concat", [x, part], "appended", axis=1)
+def _store(g: _GraphBuilder, x: str, op: Op, slots: dict[str, str]) -> str:
+    slots[op["name"]] = x
+    return x
+
+
+def _load(g: _GraphBuilder, x: str, op: Op, slots: dict[str, str]) -> str:
+    return _columns(g, slots[op["name"]], op)
+
+
+def _append(g: _GraphBuilder, x: str, op: Op, slots: dict[str, str]) -> str:
+    return g.node("Concat", [x, _columns(g, slots[op["name"]], op)], "appended", axis=1)
+
+
+# ``program.SLOT_OPS`` in the graph: a slot is the name of the tensor stored in it.
+ONNX_SLOT_OPS: dict[str, Callable[[_GraphBuilder, str, Op, dict[str, str]], str]] = {
+    "store": _store,
+    "load": _load,
+    "append": _append,
+}
 
 
 def save_onnx(path: str | Path, program: list[Op], meta: PolicyMeta) -> Path:
@@ -209,7 +218,7 @@ def save_onnx(path: str | Path, program: list[Op], meta: PolicyMeta) -> Path:
             g.nodes.append(helper.make_node("Identity", [x], [SCORES], name=SCORES))
             outputs.append(helper.make_tensor_value_info(SCORES, TensorProto.FLOAT, ["batch", "n"]))
         kind = op["op"]
-        x = _slot_op(g, x, op, slots) if kind in SLOT_OPS else ONNX_OPS[kind](g, x, op)
+        x = ONNX_SLOT_OPS[kind](g, x, op, slots) if kind in SLOT_OPS else ONNX_OPS[kind](g, x, op)
     g.nodes.append(helper.make_node("Identity", [x], [OUTPUT], name=OUTPUT))
     graph = helper.make_graph(
         g.nodes,

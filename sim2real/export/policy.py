@@ -68,7 +68,16 @@ class Policy(ABC):
                 raise PolicyError(f"observation lacks keys {missing}; expected {list(m.obs_keys)}")
             parts = [np.asarray(obs[k], dtype=np.float32) for k in m.obs_keys]
             single = _single(parts[0], m, 0)
-            flat = np.concatenate([p.reshape(1 if single else len(p), -1) for p in parts], axis=1)
+            n = 1 if single else len(parts[0])
+            sizes = m.obs_key_sizes or ()
+            for key, part, size in zip(m.obs_keys, parts, sizes, strict=True):
+                if part.size != n * size:
+                    what = "one observation" if single else f"a batch of {n}"
+                    raise PolicyError(
+                        f"observation key {key!r} has shape {part.shape}: not {what} of "
+                        f"{size} values (policy {m.source!r})"
+                    )
+            flat = np.concatenate([p.reshape(n, -1) for p in parts], axis=1)
         else:
             arr = np.asarray(obs)
             single = arr.shape == m.obs_shape

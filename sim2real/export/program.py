@@ -238,6 +238,25 @@ def score_program(program: list[Op]) -> list[Op] | None:
     return program[:-1]
 
 
+def _check_slot_op(op: Op, i: int, stored: set[str], source: str) -> None:
+    """A slot op names a slot (stored before it is read) and reads a non-empty column range:
+    a bad one would otherwise slice silently to the wrong or no columns."""
+    kind, name = op["op"], op.get("name")
+    if not isinstance(name, str) or not name:
+        raise PolicyError(f"policy {source!r}: op {i} {kind!r} has slot name {name!r}")
+    if kind == "store":
+        stored.add(name)
+        return
+    if name not in stored:
+        raise PolicyError(f"policy {source!r}: op {i} {kind!r} reads slot {name!r} before a store")
+    start, stop = op.get("start"), op.get("stop")
+    if not (isinstance(start, int) and isinstance(stop, int) and 0 <= start < stop):
+        raise PolicyError(
+            f"policy {source!r}: op {i} {kind!r} reads columns [{start!r}, {stop!r}): "
+            "need integers 0 <= start < stop"
+        )
+
+
 def validate_program(program: list[Op], source: str) -> None:
     stored: set[str] = set()
     for i, op in enumerate(program):
@@ -245,12 +264,8 @@ def validate_program(program: list[Op], source: str) -> None:
         if kind not in OPS and kind not in SLOT_OPS:
             names = sorted({*OPS, *SLOT_OPS})
             raise PolicyError(f"policy {source!r}: op {i} {kind!r} unknown; valid: {names}")
-        if kind == "store":
-            stored.add(op.get("name", ""))
-        elif kind in SLOT_OPS and op.get("name") not in stored:
-            raise PolicyError(
-                f"policy {source!r}: op {i} {kind!r} reads slot {op.get('name')!r} before a store"
-            )
+        if kind in SLOT_OPS:
+            _check_slot_op(op, i, stored, source)
         if kind in CHOICES:
             key, valid = CHOICES[kind]
             if op.get(key) not in valid:

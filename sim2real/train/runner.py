@@ -171,7 +171,7 @@ def _obs_description(env: gym.Env[Any, Any]) -> dict[str, Any]:
         "obs_shape": shape,
         "obs_keys": keys,
         "obs_key_sizes": sizes,
-        "obs_key_shapes": shapes,
+        **({} if shapes is None else {"obs_key_shapes": shapes}),
         # A Discrete env's policy outputs one index; a Box env's policy one value per dimension.
         "action_dim": 1 if discrete else int(np.prod(actions.shape or (1,))),
         "n_actions": int(actions.n) if discrete else None,  # type: ignore[attr-defined]

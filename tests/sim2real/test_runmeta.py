@@ -80,7 +80,13 @@ def test_every_shipped_policy_metadata_loads(name: str) -> None:
     assert meta.export_format == "onnx" and meta.exported_from
     assert ArmSpec.from_dict(dict(meta.spec)).fingerprint() == meta.spec_fingerprint
     assert meta.training_seeds and meta.seed == min(meta.training_seeds)
-    assert sum(f.size for f in meta.obs_layout) == meta.flat_obs_dim
+    if meta.obs_keys is None:
+        assert sum(f.size for f in meta.obs_layout) == meta.flat_obs_dim
+    else:  # a frame beside proprioception, whose fields the state layout names
+        sizes = dict(zip(meta.obs_keys, meta.obs_key_sizes or (), strict=True))
+        layout = {f.name: f.size for f in meta.obs_layout}
+        assert sum(layout[n] for n in meta.env_kwargs["proprio"]) == sizes["proprio"]
+        assert sum(sizes.values()) == meta.flat_obs_dim and meta.obs_key_shapes is not None
     assert RunMeta.from_dict(meta.to_dict()) == meta  # and it writes as the current format
 
 

@@ -303,10 +303,12 @@ def test_parity_report_counts_disagreements_and_the_score_gap(tmp_path: Path) ->
 
 # ---- what stays unsupported ---------------------------------------------------------------------
 class _FrameAndJoints(gym.Env[dict[str, np.ndarray], np.ndarray]):
-    """The spaces of a pixel env with proprioception, for a real VecNormalize to wrap."""
+    """The spaces of a pixel env with two proprioceptive keys, one sorting before the frame,
+    for a real VecNormalize to wrap."""
 
     observation_space = gym.spaces.Dict(
         {
+            "arm": gym.spaces.Box(-np.inf, np.inf, (3,), np.float32),
             PIXELS_KEY: gym.spaces.Box(0, 255, FRAME, np.uint8),
             "proprio": gym.spaces.Box(-np.inf, np.inf, (9,), np.float32),
         }
@@ -314,61 +316,93 @@ class _FrameAndJoints(gym.Env[dict[str, np.ndarray], np.ndarray]):
     action_space = gym.spaces.Box(-1, 1, (3,), np.float32)
 
 
-@pytest.mark.parametrize("recorded_shapes", [True, False])
-def test_pixel_actor_with_proprioception_exports_the_image_and_its_keys_apart(
-    recorded_shapes: bool, tmp_path: Path
-) -> None:
-    """The frame and the (normalised) proprioception are read as separate column ranges of the
-    flat input, the normaliser's clip never touches the pixels, and the continuous action is
-    torch's on every observation, whether the record names each key's shape or predates it."""
+def _frame_and_joints(recorded_shapes: bool, normalized: list[str]) -> TorchPolicy:
+    """A pixel actor reading ``arm`` and ``proprio`` beside the frame, VecNormalize on
+    ``normalized``, its record listing the keys arm, pixels, proprio (the frame in the middle)."""
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from sim2real.train.asymmetric import AsymmetricActorCriticPolicy
 
     th.manual_seed(0)
-    proprio = gym.spaces.Box(-np.inf, np.inf, (9,), np.float32)
+    env_spaces = _FrameAndJoints.observation_space.spaces
     kwargs = resolve_policy_kwargs({"features_extractor": "keypoint_cnn"}, 2, pixel_actor=True)
-    space = gym.spaces.Dict({PIXELS_KEY: CHW, "proprio": proprio, PRIVILEGED_KEY: PRIVILEGED})
+    space = gym.spaces.Dict({**env_spaces, PIXELS_KEY: CHW, PRIVILEGED_KEY: PRIVILEGED})
     policy = AsymmetricActorCriticPolicy(
         space, _FrameAndJoints.action_space, lambda _: 1e-3, **kwargs
     )
-    vn = VecNormalize(DummyVecEnv([_FrameAndJoints]), norm_obs_keys=["proprio"], clip_obs=5.0)
-    vn.obs_rms["proprio"].mean = np.linspace(-1, 1, 9)
-    vn.obs_rms["proprio"].var = np.linspace(0.5, 2, 9)
+    vn = VecNormalize(DummyVecEnv([_FrameAndJoints]), norm_obs_keys=normalized, clip_obs=5.0)
+    for key in normalized:
+        n = env_spaces[key].shape[0]
+        vn.obs_rms[key].mean = np.linspace(-1, 1, n)
+        vn.obs_rms[key].var = np.linspace(0.5, 2, n)
     size = int(np.prod(FRAME))
     meta = _meta(
-        (size + 9,),
+        (3 + size + 9,),
         3,
-        obs_keys=(PIXELS_KEY, "proprio"),
-        obs_key_sizes=(size, 9),
-        obs_key_shapes=(FRAME, (9,)) if recorded_shapes else None,
+        obs_keys=("arm", PIXELS_KEY, "proprio"),
+        obs_key_sizes=(3, size, 9),
+        obs_key_shapes=((3,), FRAME, (9,)) if recorded_shapes else None,
     )
     model = SimpleNamespace(policy=policy, predict=policy.predict, observation_space=space)
-    tp = TorchPolicy(model, vn, meta, None)
+    return TorchPolicy(model, vn, meta, None)
+
+
+@pytest.mark.parametrize("recorded_shapes", [True, False])
+def test_pixel_actor_with_proprioception_exports_the_image_and_its_keys_apart(
+    recorded_shapes: bool, tmp_path: Path
+) -> None:
+    """The frame and each (normalised) proprioceptive key are read as their own column ranges
+    of the flat input, the normaliser's clip never touches the pixels, and the continuous
+    action is torch's on every observation, a batch of one and a single one, whether the
+    record names each key's shape or predates it."""
+    tp = _frame_and_joints(recorded_shapes, ["arm", "proprio"])
+    rng = np.random.default_rng(1)
     obs = {
+        "arm": rng.normal(0, 8, (32, 3)).astype(np.float32),
         PIXELS_KEY: _frames(32),
-        "proprio": np.random.default_rng(1).normal(0, 8, (32, 9)).astype(np.float32),
+        "proprio": rng.normal(0, 8, (32, 9)).astype(np.float32),
     }
     want = tp(obs)
     program = build_program(tp)
     assert [op["op"] for op in program[:2]] == ["store", "load"]
     (norm,) = [op for op in program if op["op"] == "normalize"]
-    assert norm["mean"].shape == (9,)  # the proprioception's columns alone
+    assert norm["mean"].shape == (12,)  # arm and proprio, never the frame
     assert program[-3]["op"] == "append" and program[-1]["op"] == "clip"
     one = {k: v[0] for k, v in obs.items()}  # one observation: the frame is (H, W, C)
-    for name, exported in _exported(program, meta, tmp_path).items():
+    first = {k: v[:1] for k, v in obs.items()}  # a batch of one
+    for name, exported in _exported(program, tp.meta, tmp_path).items():
         np.testing.assert_allclose(exported(obs), want, atol=1e-5, err_msg=name)
         np.testing.assert_allclose(exported(one), want[0], atol=1e-5, err_msg=name)
-    # the proprioception matters: clipped by the normaliser, it moves the action
-    moved = tp({**obs, "proprio": obs["proprio"] * 0})
-    assert np.abs(moved - want).max() > 1e-3
+        np.testing.assert_allclose(exported(first), want[:1], atol=1e-5, err_msg=name)
+        with pytest.raises(PolicyError, match=r"key 'proprio' has shape \(32, 8\)"):
+            exported({**obs, "proprio": obs["proprio"][:, :8]})
+    # each key matters: changing either moves the action
+    for key in ("arm", "proprio"):
+        moved = tp({**obs, key: obs[key] * 0})
+        assert np.abs(moved - want).max() > 1e-3, key
 
 
-def test_a_slot_read_before_its_store_is_refused(tmp_path: Path) -> None:
-    program: list[Op] = [{"op": "load", "name": "obs", "start": 0, "stop": 3}]
-    with pytest.raises(PolicyError, match=r"op 0 'load' reads slot 'obs' before a store"):
-        FORMATS["numpy"].save(tmp_path / "p.npz", program, _meta((3,), 3))
+def test_a_proprioceptive_key_vecnormalize_leaves_raw_is_refused() -> None:
+    """The op's clip would touch it where VecNormalize passes it through."""
+    with pytest.raises(PolicyError, match=r"keys \['arm'\] beside an image that VecNormalize"):
+        build_program(_frame_and_joints(True, ["proprio"]))
+
+
+@pytest.mark.parametrize(
+    ("op", "message"),
+    [
+        ({"op": "load", "name": "obs", "start": 0, "stop": 3}, "reads slot 'obs' before a store"),
+        ({"op": "store"}, "has slot name None"),
+        ({"op": "append", "name": "x", "start": 2, "stop": 2}, r"reads columns \[2, 2\)"),
+        ({"op": "load", "name": "x", "stop": 2}, r"reads columns \[None, 2\)"),
+    ],
+)
+def test_a_bad_slot_op_is_refused_in_one_line(op: Op, message: str, tmp_path: Path) -> None:
+    program: list[Op] = [{"op": "store", "name": "x"}, op] if op.get("name") != "obs" else [op]
+    FORMATS["numpy"].save(tmp_path / "p.npz", program, _meta((3,), 3))
+    with pytest.raises(PolicyError, match=message) as info:
         load_policy(tmp_path / "p.npz")
+    assert "\n" not in str(info.value)
 
 
 def test_sb3_combined_extractor_with_an_image_is_refused() -> None:

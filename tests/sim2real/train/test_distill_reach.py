@@ -173,7 +173,8 @@ def test_the_preset_trains_in_the_envs_own_actions_and_evaluates_from_its_run_di
     env = envs.make("reach-pixels", dr="none", **cfg.env_kwargs)
     try:
         obs, _ = env.reset(seed=7)
-        batch = {k: np.stack([v, v]) for k, v in obs.items()}
+        moved, *_ = env.step(np.ones(3, dtype=np.float32))  # a second, different frame
+        batch = {k: np.stack([v, moved[k]]) for k, v in obs.items()}
         expect, _ = model.predict(batch, deterministic=True)
         np.testing.assert_allclose(policy(batch), expect, atol=1e-6)
     finally:
