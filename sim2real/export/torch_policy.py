@@ -12,6 +12,20 @@ import numpy as np
 from sim2real.export.policy import Policy, PolicyMeta
 
 
+def env_frame_shape(space: Any) -> tuple[int, ...]:
+    """A key of a policy's space in the env's own shape: an image SB3 reads channels first is
+    the channels-last frame it transposed (every sim2real pixel env renders channels last)."""
+    from stable_baselines3.common.preprocessing import (
+        is_image_space,
+        is_image_space_channels_first,
+    )
+
+    shape = tuple(int(n) for n in space.shape)
+    if is_image_space(space) and is_image_space_channels_first(space):
+        return (shape[1], shape[2], shape[0])
+    return shape
+
+
 class TorchPolicy(Policy):
     """SB3 ``predict(deterministic=True)`` on VecNormalize-normalised observations."""
 
@@ -33,13 +47,7 @@ class TorchPolicy(Policy):
         if m.obs_key_shapes is not None:
             return dict(zip(m.obs_keys, m.obs_key_shapes, strict=True))
         space = self.model.observation_space.spaces
-        out = {}
-        for key in m.obs_keys:
-            shape = tuple(int(n) for n in space[key].shape)
-            if len(shape) == 3 and shape[0] in (1, 3, 4) and shape[-1] not in (1, 3, 4):
-                shape = (shape[1], shape[2], shape[0])
-            out[key] = shape
-        return out
+        return {key: env_frame_shape(space[key]) for key in m.obs_keys}
 
     def unflatten(self, batch: np.ndarray) -> Any:
         m = self.meta

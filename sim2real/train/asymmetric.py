@@ -24,11 +24,11 @@ from stable_baselines3.common.policies import ActorCriticPolicy, BaseModel
 from stable_baselines3.common.preprocessing import (
     get_flattened_obs_dim,
     is_image_space,
-    is_image_space_channels_first,
 )
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sim2real.errors import ConfigError
+from sim2real.export.torch_policy import env_frame_shape
 from sim2real.train.augment import PIXELS_KEY, PRIVILEGED_KEY, PixelActorExtractor
 
 
@@ -124,10 +124,7 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
         arr = np.asarray(value)
         if not is_image_space(space) or arr.ndim > 2 or arr.shape[-1] != math.prod(space.shape):
             return value
-        shape = space.shape
-        if is_image_space_channels_first(space):
-            shape = (shape[1], shape[2], shape[0])
-        return arr.reshape(-1, *shape)
+        return arr.reshape(-1, *env_frame_shape(space))
 
     def actor_modules(self) -> dict[str, th.nn.Module]:
         """Everything an exported actor consists of (the critic is not among them)."""
