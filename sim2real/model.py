@@ -65,7 +65,16 @@ SERVO_SATURATION_ERROR_RAD = 0.035
 # is high, so its lower end is always under the table top.
 TARGET_STAND_RADIUS_M = 0.005
 TARGET_STAND_LENGTH_M = 0.6
-ARMATURE_KG_M2 = 0.002  # reflected rotor inertia of a ~1:300 hobby gearbox
+# Reflected rotor inertia J_rotor·N² of an MG996R-class servo: a small brushed motor (~1e-7 kg·m²)
+# behind a ~1:250 gearbox, about 0.006 kg·m²; at the stall torque the joint then reaches its rated
+# 7.5 rad/s in ~40 ms. The first model used 0.002: every 50 ms command step then jerked the wrist
+# at ~10 g, and MuJoCo's soft friction let a grasped cube slide out of the fingers (a scripted pick
+# dropped 3.8 % of its lifts; with 0.006 none in 500, BENCHMARKS "Pick that works").
+ARMATURE_KG_M2 = 0.006
+# The gripper finger's damping (N·s/m): as a joint damping, integrated implicitly. As the position
+# actuator's kv it sat inside the 12 N force clamp, and a free finger fell into a two-step limit
+# cycle (±0.86 m/s, 4 mm apart) that jammed it half open after a grasp.
+FINGER_DAMPING_NS_M = 60.0
 
 
 @dataclass(frozen=True)
@@ -246,7 +255,7 @@ def _arm_xml(spec: ArmSpec, markers: bool = False) -> tuple[str, str]:
         fingers = f"""
             <geom name="palm" type="box" size="0.012 0.032 0.006" pos="{_f(L.tool_forward_m - 0.01, 0, -L.tool_down_m + 0.03)}" rgba="0.25 0.25 0.28 1" class="arm"/>
             <body name="finger_left" pos="{_f(L.tool_forward_m, 0, -L.tool_down_m)}">
-              <joint name="finger_left" type="slide" axis="0 1 0" range="0 {_f(half)}" damping="0.5" armature="0.01"/>
+              <joint name="finger_left" type="slide" axis="0 1 0" range="0 {_f(half)}" damping="{_f(FINGER_DAMPING_NS_M)}" armature="0.01"/>
               <geom name="finger_left" type="box" size="0.009 0.004 0.025" pos="0 0.004 0.02" class="finger"/>
             </body>
             <body name="finger_right" pos="{_f(L.tool_forward_m, 0, -L.tool_down_m)}">
@@ -296,7 +305,7 @@ def _arm_xml(spec: ArmSpec, markers: bool = False) -> tuple[str, str]:
   </equality>
   <actuator>
     {"".join(f'<position name="{j.name}" joint="{j.name}" kp="{_f(kp)}" kv="{_f(kv)}" forcerange="{_f(-tau, tau)}" ctrlrange="{_f(j.lower_rad, j.upper_rad)}"/>' for j in spec.joints)}
-    {f'<position name="{grip.name}" joint="finger_left" kp="{_f(grip.max_force_n / 0.004)}" kv="{_f(grip.max_force_n / 0.004 * 0.02)}" forcerange="{_f(-grip.max_force_n, grip.max_force_n)}" ctrlrange="0 {_f(grip.max_gap_m / 2)}"/>' if grip else ""}
+    {f'<position name="{grip.name}" joint="finger_left" kp="{_f(grip.max_force_n / 0.004)}" kv="0" forcerange="{_f(-grip.max_force_n, grip.max_force_n)}" ctrlrange="0 {_f(grip.max_gap_m / 2)}"/>' if grip else ""}
   </actuator>""",
     )
 

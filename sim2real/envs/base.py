@@ -168,6 +168,14 @@ class Task(ABC):
         """Extra dense reward outside the goal-based part (not seen by HER)."""
         return 0.0
 
+    # Values after the points in ``Arm3Env.privileged_state`` (``privileged_extra``), for a
+    # privileged teacher that needs more of the truth than the points (pick: its lift goal).
+    n_privileged_extra: ClassVar[int] = 0
+
+    def privileged_extra(self, env: Arm3Env) -> np.ndarray:
+        """(``n_privileged_extra``,) task truth for training-only teachers and critics."""
+        return np.zeros(0)
+
     def success_from_distance(self, env: Arm3Env, distance_m: float) -> bool:
         """Success given the true achieved-to-desired distance (tasks may judge differently);
         the env's threshold: the task's own unless ``success_threshold_m`` was given."""
@@ -209,8 +217,16 @@ def _check_proprio(names: Any, obs_mode: str) -> tuple[str, ...]:
 
 def privileged_true_size(spec: ArmSpec, task: type[Task] | Task) -> int:
     """How many leading values of ``Arm3Env.privileged_state`` are the simulator's truth (the
-    readings' joints, the targets, the tool, the task's points); the state observation follows."""
-    return spec.n_joints + int(task.uses_gripper) + spec.n_actuators + 3 * (1 + task.n_points)
+    readings' joints, the targets, the tool, the task's points, what the safety filter let
+    through, the task's extras); the state observation follows."""
+    n_points = 3 * (1 + task.n_points)
+    return (
+        spec.n_joints
+        + int(task.uses_gripper)
+        + 2 * spec.n_actuators
+        + n_points
+        + (task.n_privileged_extra)
+    )
 
 
 def register_task(cls: type[Task]) -> type[Task]:
@@ -525,16 +541,21 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
 
     def privileged_state(self) -> np.ndarray:
         """True joint angles (and gripper), joint targets, then the tool and the task's points
-        (m, world): no sensor model, no delay (``privileged_true_size`` values). Then the last
-        state observation (``builder.layout()``): what this env in ``obs_mode="state"`` observes
-        through the same sensor models, bit for bit for the same seed and actions, so that a
-        shipped state policy can teach a pixel student (``distill``'s ``pick_ppo``)."""
+        (m, world), the targets the safety filter let through (what the servos were sent) and
+        the task's extras (``Task.privileged_extra``): no sensor model, no delay
+        (``privileged_true_size`` values). Then the last state observation
+        (``builder.layout()``): what this env in ``obs_mode="state"`` observes through the same
+        sensor models, bit for bit for the same seed and actions, so that a shipped state
+        policy can teach a pixel student (``distill``'s ``pick_ppo``). Any ``obs_mode`` has it;
+        pixel envs also report it in ``info``."""
         q = self.data.qpos[self._qadr]
         if self.task.uses_gripper:
             q = np.append(q, self.gripper_angle_rad())
         tool = self.data.site_xpos[self._tool_site]
         points = self.task.true_points(self).reshape(-1)
-        return np.concatenate([q, self._targets, tool, points, self._state_obs]).astype(np.float32)
+        extra = self.task.privileged_extra(self)
+        parts = [q, self._targets, tool, points, self._sent, extra, self._state_obs]
+        return np.concatenate(parts).astype(np.float32)
 
     def _init_fused(self) -> None:
         """What the compiled step needs that a reset does not change (``sim2real.envs.fused``)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import mujoco
@@ -12,7 +13,7 @@ from sim2real.envs import fused
 from sim2real.envs.base import START_DEFAULT, START_HELD, Task, register_task
 from sim2real.envs.contract import DeployContract, Outcome, Percept, View, need
 from sim2real.errors import ConfigError
-from sim2real.observation import ObsField
+from sim2real.observation import ActionDecoder, ObsField
 
 if TYPE_CHECKING:
     from hardware.spec import ArmSpec
@@ -329,6 +330,12 @@ class PickTask(Task):
     def cube_position(self, env: Arm3Env) -> np.ndarray:
         return self._cube_xpos
 
+    n_privileged_extra = 3
+
+    def privileged_extra(self, env: Arm3Env) -> np.ndarray:
+        """The lift goal (3,): 7 cm above where the cube was put down (``PickServo``'s aim)."""
+        return self.goal_m
+
     def true_points(self, env: Arm3Env) -> np.ndarray:
         return self._cube_points
 
@@ -384,3 +391,136 @@ class PickTask(Task):
                 self.shaping_prm,
             )
         )
+
+
+# ---- the privileged teacher ---------------------------------------------------------------------
+# Phases of ``PickServo``, in the order a pick goes through them.
+PICK_PHASES: tuple[str, ...] = ("hover", "descend", "close", "lift")
+
+
+@dataclass(frozen=True)
+class PickServo:
+    """A scripted pick on the simulator's truth (``distill``'s ``pick_servo``): over the cube,
+    down, close, lift to the goal. A pure function of ``Arm3Env.privileged_state``, so it labels
+    any state a student visits (DAgger) and needs no memory of its own phase.
+
+    Each period it picks an aim for the tool from the true tool, cube, gripper reading and what
+    the safety filter sent, moves the commanded tool at most ``step_m`` towards it (straight
+    lines: a joint-space step near the base swings the tool sideways into the cube) and commands
+    the spec's inverse kinematics of it, corrected by the offset between the true tool and the
+    spec's forward kinematics of the true joints (kinematics DR moves the tool up to ~1 cm from
+    the spec's; ``ReachServo`` does the same). The aim stays above the workspace guard's floor,
+    which the guard would refuse anyway.
+
+    * **hover** ``hover_m`` above the cube until the tool is within ``xy_tol_m`` of it;
+    * **descend** to ``grasp_low_m`` below the cube's centre (the fingertips reach below its
+      middle), keeping over it (a wider band once low, so a tool that lags a step sideways does
+      not bounce back up);
+    * **close** at the cube or, where the guard's floor stops the tool higher, at that floor;
+      the gripper closes at the 0.25 rad per period the safety clamp allows;
+    * **lift** to the goal once the gripper was sent fully closed and reads blocked by the
+      cube (``holding``'s rule, on the true reading). A gripper that closed on nothing opens
+      and the pick starts over.
+
+    Measured (``bench/pick_teacher.py``): 100 % of 500 episodes under DR ``default``.
+    """
+
+    decoder: ActionDecoder
+    hover_m: float = 0.04
+    xy_tol_m: float = 0.006
+    close_tol_m: float = 0.006
+    grasp_low_m: float = 0.004
+    step_m: float = 0.02
+    _n: int = field(init=False, repr=False)
+    _slices: dict[str, slice] = field(init=False, repr=False)
+    _floor_m: float = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        spec = self.decoder.spec
+        if spec.n_joints != 3 or spec.gripper is None or not self.decoder.use_gripper:
+            raise ConfigError(
+                f"pick teacher: spec {spec.name!r} needs 3 joints and a gripper in the action"
+            )
+        n, n_act = spec.n_joints, spec.n_actuators
+        # ``Arm3Env.privileged_state`` for pick: readings (joints, gripper), targets, the tool,
+        # the cube, what was sent, the lift goal
+        starts = {"q": 0, "targets": n + 1, "tool": n + 1 + n_act, "cube": n + 4 + n_act}
+        sizes = {"q": n + 1, "targets": n_act, "tool": 3, "cube": 3}
+        slices = {k: slice(starts[k], starts[k] + sizes[k]) for k in starts}
+        slices["sent"] = slice(n + 7 + n_act, n + 7 + 2 * n_act)
+        slices["goal"] = slice(n + 7 + 2 * n_act, n + 10 + 2 * n_act)
+        object.__setattr__(self, "_n", n)
+        object.__setattr__(self, "_slices", slices)
+        floor = spec.workspace.table_z_m + spec.workspace.margin_m + 0.0005
+        object.__setattr__(self, "_floor_m", floor)
+
+    @property
+    def n_inputs(self) -> int:
+        return 6
+
+    def _read(self, privileged: np.ndarray) -> dict[str, np.ndarray]:
+        p = np.asarray(privileged, dtype=float)
+        if len(p) < self._slices["goal"].stop:
+            raise ConfigError(
+                f"pick teacher: a privileged state of {len(p)} values is not pick's "
+                f"(at least {self._slices['goal'].stop})"
+            )
+        return {k: p[sl] for k, sl in self._slices.items()}
+
+    def decide(self, privileged: np.ndarray) -> tuple[str, np.ndarray, bool]:
+        """(phase, the tool's aim (3,) m, close the gripper)."""
+        v = self._read(privileged)
+        grip = self.decoder.spec.gripper
+        assert grip is not None
+        n = self._n
+        tool, cube = v["tool"], v["cube"]
+        span = grip.open_rad - grip.closed_rad
+        sent_closed = (v["sent"][n] - grip.closed_rad) / span < 0.05
+        closing = (v["targets"][n] - grip.closed_rad) / span < 0.5
+        reading_open = (v["q"][n] - grip.closed_rad) / span > 0.125
+        rel = cube - tool
+        apart, horiz = float(np.linalg.norm(rel)), float(np.linalg.norm(rel[:2]))
+        if sent_closed and reading_open and apart < GRASP_NEAR_M:
+            return "lift", v["goal"], True
+        low = cube - (0.0, 0.0, self.grasp_low_m)
+        if closing and apart < 0.015 and not (sent_closed and not reading_open):
+            return "close", low, True
+        low_enough = tool[2] < cube[2] + self.hover_m + 0.005
+        if horiz > self.xy_tol_m and not (horiz < 2.5 * self.xy_tol_m and low_enough):
+            return "hover", cube + (0.0, 0.0, self.hover_m), False
+        # the lowest the guard lets the true tool go: its floor, plus where the true tool sits
+        # above the spec's forward kinematics of the true joints
+        offset_z = float(tool[2] - self.decoder.spec.forward_kinematics(v["q"][:n])[2])
+        at_floor = tool[2] < self._floor_m + offset_z + 0.002 and tool[2] - cube[2] < 0.012
+        close = apart < self.close_tol_m or (horiz < self.xy_tol_m and at_floor)
+        return "descend", low, close
+
+    def action(self, privileged: np.ndarray) -> np.ndarray:
+        """(4,) float32 in [-1, 1]: joint steps towards the aim, the gripper open or closed."""
+        spec, v = self.decoder.spec, self._read(privileged)
+        n = self._n
+        _, aim, close = self.decide(privileged)
+        offset = v["tool"] - spec.forward_kinematics(v["q"][:n])
+        commanded = spec.forward_kinematics(v["targets"][:n]) + offset
+        move = aim - commanded
+        dist = float(np.linalg.norm(move))
+        if dist > self.step_m:
+            aim = commanded + move * (self.step_m / dist)
+        target = aim - offset
+        target[2] = max(target[2], self._floor_m)
+        q_goal = spec.inverse_kinematics(target)
+        if q_goal is None:  # the corrected aim out of the spec's reach: the uncorrected one
+            q_goal = spec.inverse_kinematics(aim)
+        out = np.zeros(self.decoder.n_actions, dtype=np.float32)
+        if q_goal is not None:
+            step = (q_goal - v["targets"][:n]) / self.decoder.max_delta_rad
+            out[:n] = np.clip(step, -1.0, 1.0)
+        out[n] = -1.0 if close else 1.0
+        return out
+
+    def inputs(self, privileged: np.ndarray) -> np.ndarray:
+        """What it decides on, in 0.1 m units: the cube's and the goal's offsets from the tool."""
+        v = self._read(privileged)
+        return np.concatenate((v["cube"] - v["tool"], v["goal"] - v["tool"])).astype(
+            np.float32
+        ) * np.float32(10.0)

@@ -75,6 +75,7 @@ class TrainConfig:
     augment: Mapping[str, Any] | None = None  # image augmentation in updates, see augment.py
     privileged_critic: bool = False  # asymmetric actor-critic, see asymmetric.py
     warm_start: Mapping[str, Any] | None = None  # start from a teacher's experience, warmstart.py
+    dagger: Mapping[str, Any] | None = None  # imitate a privileged teacher first, dagger.py
     spec_path: str | None = None
     preset: str = ""
     progress: bool = True
@@ -166,6 +167,18 @@ class TrainConfig:
                 raise ConfigError("warm_start cannot be used with --her (a flat observation)")
             WarmStart.from_mapping(self.warm_start)
             object.__setattr__(self, "warm_start", dict(self.warm_start))
+        if self.dagger is not None:
+            from sim2real.train.dagger import Dagger
+            from sim2real.train.dagger import check_algo as check_dagger_algo
+
+            check_dagger_algo(algo.name)
+            if self.her or self.warm_start is not None or self.uses_privileged:
+                raise ConfigError(
+                    "dagger trains a state student: not with --her, warm_start, a privileged "
+                    "critic or a distilled run"
+                )
+            Dagger.from_mapping(self.dagger)
+            object.__setattr__(self, "dagger", dict(self.dagger))
         _check_hyperparams(algo.name, self.hyperparams)
         _check_env_kwargs(self.env_id, self.env_kwargs)
         object.__setattr__(

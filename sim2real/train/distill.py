@@ -121,12 +121,26 @@ def _state_policy(policy_name: str, decoder: ActionDecoder | None) -> Teacher:
     return Teacher(t.action, t.inputs, t.n_inputs, continuous=True, check_env=t.check_env)
 
 
+def _pick_servo(decoder: ActionDecoder | None) -> Teacher:
+    """The scripted pick on the truth: over the cube, down, close, lift (``pick.PickServo``)."""
+    from sim2real.envs.pick import PickServo
+    from sim2real.observation import ActionDecoder
+
+    if decoder is None:
+        from hardware.spec import load_spec
+
+        decoder = ActionDecoder(load_spec(), use_gripper=True)
+    servo = PickServo(decoder)
+    return Teacher(servo.action, servo.inputs, servo.n_inputs, continuous=True)
+
+
 # Teacher name → the teacher built for an env's action decoder (its arm spec and step size; None:
 # an env without one, or no env: the shipped arm). A model saves the name, never the teacher.
 TEACHERS: dict[str, Callable[[ActionDecoder | None], Teacher]] = {
     "kuka_scripted": _kuka_teacher,
     "reach_ik": _reach_ik,
     "reach_servo": _reach_servo,
+    "pick_servo": _pick_servo,
     # shipped state policies (``sim2real policies``): 36.5 % and 33.5 % held-out on pick (DR default)
     "pick_ppo": functools.partial(_state_policy, "pick-ppo"),
     "pick_td3": functools.partial(_state_policy, "pick-td3"),

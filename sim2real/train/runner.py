@@ -15,6 +15,7 @@ import pickle
 import platform
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, cast
@@ -23,7 +24,7 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import CallbackList
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.preprocessing import is_image_space
@@ -311,7 +312,9 @@ class _Session:
             self.status["latest_checkpoint"] = ckpt.model.name
         self.rd.write_status(self.status)
 
-    def learn(self, model: BaseAlgorithm) -> TrainResult:
+    def learn(self, model: BaseAlgorithm, extra: Sequence[BaseCallback] = ()) -> TrainResult:
+        """SB3's ``learn`` with the run's callbacks (and ``extra`` ones); the wall-clock limit
+        counts what this segment spent before it (a dagger stage)."""
         cfg, rd = self.cfg, self.rd
         model.set_logger(_logger(rd))
         start = int(model.num_timesteps)
@@ -321,13 +324,15 @@ class _Session:
             cfg.save_replay,
             lambda c: self.write_status(model, False, c),
         )
-        wall = WallClockLimit(cfg.max_wall_s)
+        spent_s = time.perf_counter() - self._t0
+        wall = WallClockLimit(max(cfg.max_wall_s - spent_s, 1e-3) if cfg.max_wall_s else 0.0)
         callbacks = CallbackList(
             [
                 ProgressBar(cfg.steps, enabled=cfg.progress),
                 EpisodeLog(rd.episodes_path, self.wall_before_s),
                 ckpt_cb,
                 wall,
+                *extra,
             ]
         )
         self.write_status(model, False, None)
@@ -391,7 +396,29 @@ def train(cfg: TrainConfig) -> TrainResult:
     rd.write_meta(meta)
     if cfg.warm_start is not None:
         _warm_start(cfg, rd, model, meta)
-    return session.learn(model)
+    anchor = _dagger(cfg, rd, model) if cfg.dagger is not None else None
+    return session.learn(model, () if anchor is None else (anchor,))
+
+
+def _dagger(cfg: TrainConfig, rd: RunDir, model: BaseAlgorithm) -> BaseCallback | None:
+    """Imitate the privileged teacher before the first update (``dagger``); the figures in
+    ``dagger.json``. Returns the anchor that goes on imitating while the algorithm learns, if
+    the preset asks for one. A failure leaves no half-started run behind."""
+    from sim2real.train.atomic import atomic_write_json
+    from sim2real.train.dagger import Dagger, DaggerStage
+
+    try:
+        model.set_logger(_logger(rd))
+        stage = DaggerStage(model, cfg.algo, Dagger.from_mapping(cfg.dagger), cfg.seed)
+        atomic_write_json(rd.path / "dagger.json", stage.run())
+        return stage.anchor()
+    except BaseException:
+        env = model.get_env()
+        with contextlib.suppress(Exception):
+            if env is not None:
+                env.close()
+        shutil.rmtree(rd.path, ignore_errors=True)
+        raise
 
 
 def _warm_start(cfg: TrainConfig, rd: RunDir, model: BaseAlgorithm, meta: RunMeta) -> None:

@@ -100,8 +100,9 @@ class StatePolicyTeacher:
         object.__setattr__(self, "_policy", policy)
         object.__setattr__(self, "_start", start)
         object.__setattr__(self, "_size", start + int(meta.obs_shape[0]))
-        # the true part ends with the tool, then the task's points
-        object.__setattr__(self, "_tool", start - 3 * (1 + task.n_points))
+        # the true part: the readings, the targets, then the tool and the task's points
+        tool = spec.n_joints + int(task.uses_gripper) + spec.n_actuators
+        object.__setattr__(self, "_tool", tool)
 
     @property
     def n_inputs(self) -> int:

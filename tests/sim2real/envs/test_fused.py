@@ -20,6 +20,7 @@ from sim2real.actuation import ServoActuation
 from sim2real.envs import fused
 from sim2real.envs.pick import (
     BLIND_CAP_S,
+    GRASP_NEAR_M,
     HOLD_MARGIN_RAD,
     PickTask,
     cube_estimate,
@@ -315,11 +316,15 @@ def test_pick_shaping_is_the_grasp_check_and_the_lift() -> None:
                 assert u.task.shaping(u) == pytest.approx(
                     want, rel=1e-14, abs=1e-15
                 )  # np.linalg.norm: BLAS
-                # the arm's version (``finetune.ArmEnv``), fed what it would perceive
+                # the arm's version (``finetune.ArmEnv``), fed what it would perceive: it pays
+                # the grasp only with the tool at the cube (a grasp by the fingertips' far ends
+                # is one the arm cannot tell from a gripper closing in empty air)
+                apart = float(np.linalg.norm(v))
+                want_arm = want if apart < GRASP_NEAR_M else -2.0 * apart
                 assert percept_shaping(
                     u.ee_position(), u.task.cube_position(u), u.task.rest_z_m,
                     u.task.is_grasped(u),
-                ) == pytest.approx(want, abs=1e-12)  # fmt: skip
+                ) == pytest.approx(want_arm, abs=1e-12)  # fmt: skip
                 gated = fused.grasp_reach(
                     u.ee_position(), u.task.cube_position(u), u.data.geom_xpos,
                     u.task.shaping_ids, u.task.shaping_prm,

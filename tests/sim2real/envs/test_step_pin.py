@@ -1,6 +1,6 @@
 """The arm envs' step path is bit-for-bit what the shipped policies were trained and measured on.
 
-``tests/data/step_pin/env_rollouts_v1.npz`` holds seeded rollouts (default DR, random actions, a
+``tests/data/step_pin/env_rollouts_v2.npz`` holds seeded rollouts (default DR, random actions, a
 reset part-way, the held start for pick) recorded before the step path was made faster (see the
 README there). This test replays them and demands the same observations, rewards, flags and
 info figures, to the bit: a faster step must not change what a policy sees.
@@ -16,7 +16,7 @@ import pytest
 
 import sim2real.envs as envs
 
-PIN = Path(__file__).parents[2] / "data" / "step_pin" / "env_rollouts_v1.npz"
+PIN = Path(__file__).parents[2] / "data" / "step_pin" / "env_rollouts_v2.npz"
 CASES: dict[str, tuple[str, dict[str, Any], dict[str, Any] | None]] = {
     # name: (env id, env kwargs, reset options of the second episode)
     "reach": ("Sim2Real/Arm3Reach-v0", {}, None),

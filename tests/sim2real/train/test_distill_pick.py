@@ -80,7 +80,7 @@ def test_the_teacher_refuses_an_env_it_would_mislabel() -> None:
     assert teacher.check_env is not None
     with pytest.raises(ConfigError, match="trained with safety_filter=True; the env has safety"):
         teacher.check_env(env.spec.kwargs if env.spec is not None else {})
-    with pytest.raises(ConfigError, match="needs a privileged state of 48 values .* got 47"):
+    with pytest.raises(ConfigError, match="needs a privileged state of 55 values .* got 47"):
         teacher.action(np.zeros(47, dtype=np.float32))
     env.close()
     # another task: reach has no gripper action
