@@ -25,12 +25,14 @@ import os
 import platform
 from pathlib import Path
 
+from support.load import emit_row
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 
 def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+    emit_row({"metric": metric, "value": value, "unit": unit, **extra})
 
 
 def ship_checkpoint(run: str, name: str) -> dict[str, object]:
