@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
-from support import load  # noqa: E402
+from support import load
 
 
 def test_emit_stamps_prints_and_records(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
