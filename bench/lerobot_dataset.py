@@ -40,7 +40,7 @@ from support.load import emit_row
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / ".cache"
 VENV = CACHE / "lerobot-venv"
-# The versions validated against (BENCHMARKS.md names them).
+# The versions validated against (docs/studies/deploy.md, "LeRobot datasets", names them).
 LEROBOT_PINS = ("lerobot-dataset==0.4.4", "torch==2.8.0", "torchvision==0.23.0")
 
 
