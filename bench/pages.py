@@ -101,7 +101,7 @@ def current(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             order.append(key)
         if key not in newest or str(r.get("date", "")) >= str(newest[key].get("date", "")):
             newest[key] = r
-        for field in ("label", "table", "target"):
+        for field in ("label", "table", "target", "headline", "headline_label"):
             if field in r:
                 shown.setdefault(key, {})[field] = r[field]
     return [{**shown.get(k, {}), **newest[k]} for k in order]
@@ -137,7 +137,9 @@ def value_text(r: dict[str, Any]) -> str:
         return text
     if unit == "x":
         return f"{_num(v)}×"
-    number = f"{v:.2f}" if unit == "Hz" else _num(v)  # a loop rate's 20.00 says "no period lost"
+    # a loop rate's 20.00 says "no period lost"; a ratio's 1.00 is two digits, as it was measured
+    two = unit == "Hz" or (unit == "ratio" and round(v, 2) == v)
+    number = f"{v:.2f}" if two else _num(v)
     text = number if unit in ("ratio", "count", "1", "") else f"{number} {unit}"
     if ci:
         text += f" [{_num(ci[0])}, {_num(ci[1])}]"
@@ -305,7 +307,7 @@ def render_headlines(records: dict[str, list[dict[str, Any]]]) -> str:
         for r in current(records.get(area.name, [])):
             if not r.get("headline"):
                 continue
-            label = str(r.get("label") or r["metric"])
+            label = str(r.get("headline_label") or r.get("label") or r["metric"])
             if r.get("policy") and f"`{r['policy']}`" not in label:
                 label = f"`{r['policy']}`: {label}"
             link = f"[{titles[area.name]}](docs/benchmarks/{area.name}.md)"
