@@ -117,8 +117,11 @@ def cards() -> dict[str, dict[str, Any]]:
 
 
 def _num(v: float) -> str:
+    """As measured: a float keeps a decimal (15.0 ms), thousands get separators (8,494)."""
     if float(v).is_integer() and abs(v) >= 1000:
         return f"{int(v):,}"
+    if isinstance(v, float) and v.is_integer():
+        return f"{v:.1f}"
     return f"{v:g}" if abs(v) < 1e5 else f"{v:,.0f}"
 
 

@@ -85,7 +85,9 @@ def test_a_figure_of_an_earlier_policy_says_so() -> None:
 def test_values_read_as_figures() -> None:
     frac = {"value": 0.915, "unit": "fraction", "ci95": [0.8681, 0.9463]}
     assert pages.value_text(frac) == "91.5 % [86.8, 94.6]"
-    assert pages.value_text({"value": 52.0, "unit": "x"}) == "52×"
+    assert pages.value_text({"value": 52.0, "unit": "x"}) == "52.0×"
+    assert pages.value_text({"value": 15.0, "unit": "ms"}) == "15.0 ms"
+    assert pages.value_text({"value": 1.0, "unit": "ratio"}) == "1.00"
     assert pages.value_text({"value": 8494, "unit": "steps/s"}) == "8,494 steps/s"
     assert pages.value_text({"value": 20.0, "unit": "Hz"}) == "20.00 Hz"
     assert json.dumps(pages.value_text({"value": None, "p99_ms": 3.1})) == '"p99_ms 3.1"'
