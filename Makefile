@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: venv demo test test-all bench lint format firmware firmware-test avr-deps clean
+.PHONY: venv demo test test-all bench lint format firmware firmware-test avr-deps docs docs-serve clean
 
 # The AVR firmware's toolchain and simulator (Debian packages). `make test` installs them when
 # missing and it runs as root (CI does); otherwise the AVR tests skip with a one-line reason.
@@ -20,7 +20,7 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -c constraints.txt -e '.[all,dev]'
+	$(BIN)/pip install --quiet -c constraints.txt -e '.[all,dev,docs]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -58,5 +58,17 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
 
+# The documentation site (mkdocs.yml): the benchmark pages from bench/records first, then a
+# strict build (a dead link or a page missing from the nav fails). Offline once the docs extra is
+# installed (make venv installs it; an older .venv gets it here).
+docs: $(STAMP)
+	@$(BIN)/python -c "import mkdocs, material, mkdocstrings" 2>/dev/null || \
+		$(BIN)/pip install --quiet -c constraints.txt -e '.[docs]'
+	$(BIN)/python bench/pages.py
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+
+docs-serve: docs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs serve
+
 clean:
-	rm -rf $(VENV) .cache build *.egg-info
+	rm -rf $(VENV) .cache build site *.egg-info

@@ -36,6 +36,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from support.load import emit_row
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 REPO = Path(__file__).resolve().parents[1]
@@ -47,7 +49,7 @@ ADAPT_DEFAULT_EPISODES = 20  # `sim2real adapt --episodes` default
 
 
 def emit(row: dict[str, Any]) -> None:
-    print(json.dumps(row), flush=True)
+    emit_row(row)
 
 
 def sim_success(policy: str | Path, episodes: int) -> dict[str, Any]:

@@ -15,17 +15,18 @@ learner runs here: this is the baseline the fine-tuning loop's own timing is com
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
+
+from support.load import emit_row
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 
 def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+    emit_row({"metric": metric, "value": value, "unit": unit, **extra})
 
 
 def main() -> None:

@@ -19,7 +19,6 @@ Usage: python bench/avr_firmware.py [--steps 500]
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -28,6 +27,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from support.load import emit_row
 
 from hardware.emulator import AvrEmulator, Emulator
 from hardware.firmware import avr
@@ -74,25 +75,19 @@ def main() -> int:
         time.sleep(IDLE_S)
         cpu = (time.process_time() - cpu0) / (time.perf_counter() - t0)
         wakes = emu._iterations - wakes0
-    print(
-        json.dumps(
-            {
-                "metric": "idle_cpu_python",
-                "core_fraction": round(cpu, 4),
-                "wakeups_per_s": round(wakes / IDLE_S, 2),
-            }
-        )
+    emit_row(
+        {
+            "metric": "idle_cpu_python",
+            "core_fraction": round(cpu, 4),
+            "wakeups_per_s": round(wakes / IDLE_S, 2),
+        }
     )
     p50, p99 = (float(np.percentile(py_ms, q)) for q in (50, 99))
-    print(
-        json.dumps(
-            {"metric": "roundtrip_s2r_python", "p50_ms": round(p50, 3), "p99_ms": round(p99, 3)}
-        )
-    )
+    emit_row({"metric": "roundtrip_s2r_python", "p50_ms": round(p50, 3), "p99_ms": round(p99, 3)})
 
     reason = avr.missing_toolchain()
     if reason is not None:
-        print(json.dumps({"metric": "avr", "skipped": reason}))
+        emit_row({"metric": "avr", "skipped": reason})
         return 0 if ok else 1
     build = avr.build()
     with AvrEmulator(spec) as chip:
@@ -118,41 +113,35 @@ def main() -> int:
         baud = chip.baud_actual
     report = avr.size_report(build.elf, stack_peak_bytes=stack)
     ok &= report.within_budget()
-    print(json.dumps({"metric": "avr_size", **report.as_dict(), "ok": report.within_budget()}))
+    emit_row({"metric": "avr_size", **report.as_dict(), "ok": report.within_budget()})
     a50, a99 = (float(np.percentile(avr_ms, q)) for q in (50, 99))
     ok &= a99 < PERIOD_MS
-    print(
-        json.dumps(
-            {
-                "metric": "roundtrip_s2r_avr",
-                "p50_ms": round(a50, 3),
-                "p99_ms": round(a99, 3),
-                "p50_ratio_to_python": round(a50 / p50, 2),
-                "uart_baud": baud,
-                "ok": a99 < PERIOD_MS,
-            }
-        )
+    emit_row(
+        {
+            "metric": "roundtrip_s2r_avr",
+            "p50_ms": round(a50, 3),
+            "p99_ms": round(a99, 3),
+            "p50_ratio_to_python": round(a50 / p50, 2),
+            "uart_baud": baud,
+            "ok": a99 < PERIOD_MS,
+        }
     )
-    print(
-        json.dumps(
-            {
-                "metric": "pulse_width_vs_output",
-                "pulses": int(errors_ns.size),
-                "abs_error_p50_ns": float(np.percentile(errors_ns, 50)),
-                "abs_error_p99_ns": float(np.percentile(errors_ns, 99)),
-                "abs_error_max_ns": float(errors_ns.max()),
-                "share_within_0.5us": round(float(np.mean(errors_ns < 500)), 4),
-            }
-        )
+    emit_row(
+        {
+            "metric": "pulse_width_vs_output",
+            "pulses": int(errors_ns.size),
+            "abs_error_p50_ns": float(np.percentile(errors_ns, 50)),
+            "abs_error_p99_ns": float(np.percentile(errors_ns, 99)),
+            "abs_error_max_ns": float(errors_ns.max()),
+            "share_within_0.5us": round(float(np.mean(errors_ns < 500)), 4),
+        }
     )
-    print(
-        json.dumps(
-            {
-                "metric": "idle_cpu_avr",
-                "core_fraction_torque_off": round(idle, 4),
-                "core_fraction_pulsing": round(pulsing, 4),
-            }
-        )
+    emit_row(
+        {
+            "metric": "idle_cpu_avr",
+            "core_fraction_torque_off": round(idle, 4),
+            "core_fraction_pulsing": round(pulsing, 4),
+        }
     )
     return 0 if ok else 1
 

@@ -15,7 +15,6 @@ Run: ``.venv/bin/python bench/calibration_accuracy.py``
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -24,6 +23,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+from support.load import emit_row  # noqa: E402
 
 from calibration.boards import parse_board  # noqa: E402
 from calibration.dataset import detect_images, list_images, pair_images  # noqa: E402
@@ -46,7 +47,7 @@ def emit(
     row = {"metric": metric, "value": round(float(value), 6), "unit": unit, "target": target}
     row["pass"] = passed
     row.update(extra)
-    print(json.dumps(row), flush=True)
+    emit_row(row)
 
 
 def synthetic(path: str, seeds: range) -> None:

@@ -35,7 +35,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import argparse
 import itertools
-import json
 import math
 import sys
 import time
@@ -47,6 +46,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+from support.load import emit_row  # noqa: E402
 
 from calibration.cube import wrap_yaw  # noqa: E402
 from calibration.cube_tracker import SmallMarkerDetector, StereoCubeTracker  # noqa: E402
@@ -68,7 +69,7 @@ def emit(
 ) -> None:
     row: dict[str, object] = {"metric": metric, "value": round(float(value), 6), "unit": unit}
     row.update(target=target, **{"pass": passed}, **extra)
-    print(json.dumps(row), flush=True)
+    emit_row(row)
 
 
 def rig_at(distance_m: float) -> RigSpec:

@@ -9,7 +9,6 @@ bench.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
@@ -21,6 +20,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 import gymnasium as gym
 import mujoco
 import numpy as np
+from support.load import emit_row
 
 import sim2real.envs  # noqa: F401
 
@@ -98,9 +98,7 @@ def best_of(fn: Callable[[], float]) -> float:
 
 
 def emit(metric: str, value: float, unit: str, **extra: object) -> None:
-    print(
-        json.dumps({"metric": metric, "value": round(value, 3), "unit": unit, **extra}), flush=True
-    )
+    emit_row({"metric": metric, "value": round(value, 3), "unit": unit, **extra})
 
 
 def main() -> None:

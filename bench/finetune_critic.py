@@ -13,12 +13,12 @@ return, so even sim shows a positive bias of the tail's size).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from support.load import emit_row
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -88,7 +88,7 @@ def main() -> None:
         with th.no_grad():
             q = learner.model.critic(th.as_tensor(np.stack(obs_l)), th.as_tensor(np.stack(act_l)))
         qv, mc = q[0].numpy().ravel(), np.asarray(ret_l)
-        print(json.dumps({
+        emit_row({
             "metric": "finetune_critic_bias", "value": round(float((qv - mc).mean()), 3),
             "unit": "return", "world": name, "plant": a.plant if name == "plant" else None,
             "q_mean": round(float(qv.mean()), 3), "mc_mean": round(float(mc.mean()), 3),
@@ -97,7 +97,7 @@ def main() -> None:
             "success_exploring": wins / a.episodes,
             "final_distance_mm": round(1e3 * float(np.mean(final_m)), 2),
             "reward_per_step": round(float(np.mean(rewards)), 4), "episodes": a.episodes,
-        }), flush=True)  # fmt: skip
+        })  # fmt: skip
         env.close()
 
 

@@ -40,12 +40,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from support.load import emit_row
+
 ROOT = Path(__file__).resolve().parents[1]
 HANG_S = 300.0  # only turns a hang into a failed fault
 
 
 def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+    emit_row({"metric": metric, "value": value, "unit": unit, **extra})
 
 
 def _default_signals() -> None:

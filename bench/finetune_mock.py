@@ -17,7 +17,6 @@ learner's updates, the safety stats; then the learning-curve PNG path (matplotli
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shutil
@@ -25,12 +24,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from support.load import emit_row
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 
 def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+    emit_row({"metric": metric, "value": value, "unit": unit, **extra})
 
 
 def _plot(curves: dict[int, list[dict[str, Any]]], target: float | None, path: Path,

@@ -18,15 +18,15 @@ with the env steps, the gradient steps and the learner's wall seconds so far.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from typing import Any
 
 import numpy as np
+from support.load import emit_row
 
 
 def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+    emit_row({"metric": metric, "value": value, "unit": unit, **extra})
 
 
 def plant_env(env_id: str, env_kwargs: dict[str, Any], plant_name: str, control_hz: float) -> Any:

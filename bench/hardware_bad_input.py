@@ -11,7 +11,6 @@ Usage: python bench/hardware_bad_input.py
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -23,6 +22,8 @@ import serial
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from support.load import emit_row  # noqa: E402
 
 from hardware.emulator import Emulator  # noqa: E402
 from hardware.joint_calibration import nominal_calibration, with_joints  # noqa: E402
@@ -48,20 +49,17 @@ def check(
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     one_line = len(lines) == 1 and lines[0].startswith("sim2real arm: error: ")
     ok = proc.returncode == 2 and one_line and expect in proc.stderr and untouched()
-    print(
-        json.dumps(
-            {
-                "metric": f"bad_input_{name}",
-                "value": lines[0] if lines else "",
-                "unit": "error line",
-                "exit_code": proc.returncode,
-                "stderr_lines": len(lines),
-                "nothing_written": untouched(),
-                "target": "exit 2, one line naming the problem, nothing written",
-                "pass": ok,
-            }
-        ),
-        flush=True,
+    emit_row(
+        {
+            "metric": f"bad_input_{name}",
+            "value": lines[0] if lines else "",
+            "unit": "error line",
+            "exit_code": proc.returncode,
+            "stderr_lines": len(lines),
+            "nothing_written": untouched(),
+            "target": "exit 2, one line naming the problem, nothing written",
+            "pass": ok,
+        }
     )
     return ok
 

@@ -22,7 +22,6 @@ Run: ``MUJOCO_GL=egl nice -n 10 .venv/bin/python bench/kinematic_calibration.py`
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -34,6 +33,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+from support.load import emit_row  # noqa: E402
 
 from hardware.plant import load_plant  # noqa: E402
 from hardware.spec import load_spec  # noqa: E402
@@ -48,7 +49,7 @@ OFFSET_TARGET_RAD = 0.005
 def _line(plant: str, metric: str, value: float, unit: str, target: str, ok: bool | None) -> None:
     row = {"plant": plant, "metric": metric, "value": value, "unit": unit, "target": target}
     row["pass"] = ok
-    print(json.dumps(row), flush=True)
+    emit_row(row)
 
 
 def main() -> int:

@@ -27,7 +27,6 @@ Run: ``nice -n 10 .venv/bin/python bench/kuka_grasp_throughput.py [--quick]``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from collections.abc import Callable
@@ -39,6 +38,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import mujoco
 import numpy as np
+from support.load import emit_row
 
 from sim2real.envs import kuka_grasp as kg
 from sim2real.evaluate.stats import wilson_interval
@@ -49,9 +49,7 @@ TARGET_STEPS_PER_S = 500.0
 
 
 def emit(metric: str, value: float, unit: str, **extra: object) -> None:
-    print(
-        json.dumps({"metric": metric, "value": round(value, 3), "unit": unit, **extra}), flush=True
-    )
+    emit_row({"metric": metric, "value": round(value, 3), "unit": unit, **extra})
 
 
 class Meter:

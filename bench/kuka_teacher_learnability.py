@@ -24,7 +24,6 @@ Run: ``nice -n 10 .venv/bin/python bench/kuka_teacher_learnability.py [--extract
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 
@@ -36,6 +35,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import gymnasium as gym
 import numpy as np
 import torch as th
+from support.load import emit_row
 
 import sim2real.envs as envs
 from sim2real.envs import kuka_grasp as kg
@@ -48,7 +48,7 @@ HELD_OUT_SEED = 900_000_000  # far from the collection seeds
 
 
 def emit(metric: str, value: float, **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": round(value, 4), **extra}), flush=True)
+    emit_row({"metric": metric, "value": round(value, 4), **extra})
 
 
 def collect(

@@ -35,11 +35,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np
+from support.load import emit_row
 
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / ".cache"
 VENV = CACHE / "lerobot-venv"
-# The versions validated against (BENCHMARKS.md names them).
+# The versions validated against (docs/studies/deploy.md, "LeRobot datasets", names them).
 LEROBOT_PINS = ("lerobot-dataset==0.4.4", "torch==2.8.0", "torchvision==0.23.0")
 
 
@@ -126,21 +127,19 @@ def main() -> int:
         return 1
     rec = json.loads(buf.getvalue().strip().splitlines()[-1])
     info = json.loads((out / "meta" / "info.json").read_text())
-    print(
-        json.dumps(
-            {
-                "bench": "lerobot_record",
-                "source": args.source,
-                "policy": run,
-                "env": "Sim2Real/Arm3Pick-v0",
-                "episodes": rec["episodes"],
-                "frames": info["total_frames"],
-                "success_rate": rec["success_rate"],
-                "wall_s": round(wall_s, 1),
-                "machine": f"{platform.machine()} {os.cpu_count()} cpu",
-            }
-        ),
-        flush=True,
+    emit_row(
+        {
+            "metric": "lerobot_record",
+            "bench": "lerobot_record",
+            "source": args.source,
+            "policy": run,
+            "env": "Sim2Real/Arm3Pick-v0",
+            "episodes": rec["episodes"],
+            "frames": info["total_frames"],
+            "success_rate": rec["success_rate"],
+            "wall_s": round(wall_s, 1),
+            "machine": f"{platform.machine()} {os.cpu_count()} cpu",
+        }
     )
     ref = out.parent / f"lerobot-pick-{args.source}-ref.npz"
     n_ref = reference_frames(out, ref)
@@ -176,7 +175,9 @@ def main() -> int:
     }
     mismatch = {k: (got.get(k), v) for k, v in want.items() if got.get(k) != v}
     ok = not mismatch and got["video_mean_abs_diff"] < 1e-3 and got["codebase_version"] == "v3.0"
-    print(json.dumps({"bench": "lerobot_load", "ok": ok, "mismatch": mismatch, **got}), flush=True)
+    emit_row(
+        {"metric": "lerobot_load", "bench": "lerobot_load", "ok": ok, "mismatch": mismatch, **got}
+    )
     return 0 if ok else 1
 
 

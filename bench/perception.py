@@ -27,7 +27,6 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import json
 import math
 import sys
 import time
@@ -38,6 +37,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+from support.load import emit_row  # noqa: E402
 
 from calibration.boards import aruco_dictionary  # noqa: E402
 from calibration.kalman import KalmanTracker, TrackerConfig  # noqa: E402
@@ -64,7 +65,7 @@ def emit(
 ) -> None:
     row: dict[str, object] = {"metric": metric, "value": round(float(value), 6), "unit": unit}
     row.update(target=target, **{"pass": passed}, **extra)
-    print(json.dumps(row), flush=True)
+    emit_row(row)
 
 
 class NoisyStereo:

@@ -22,7 +22,6 @@ Run: ``MUJOCO_GL=egl nice -n 10 .venv/bin/python bench/robosuite_throughput.py``
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
@@ -34,6 +33,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 import gymnasium as gym
 import mujoco
 import numpy as np
+from support.load import emit_row
 
 import sim2real.envs  # noqa: F401  (registers the ids)
 
@@ -209,9 +209,7 @@ class RobosuiteCase(Case):
 
 
 def emit(metric: str, value: float, unit: str, **extra: object) -> None:
-    print(
-        json.dumps({"metric": metric, "value": round(value, 3), "unit": unit, **extra}), flush=True
-    )
+    emit_row({"metric": metric, "value": round(value, 3), "unit": unit, **extra})
 
 
 def main() -> None:

@@ -11,12 +11,12 @@ figure to read is the ratio; the microseconds depend on the machine's load.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 from collections.abc import Callable
 
 import numpy as np
+from support.load import emit_row
 
 from hardware.safety import SafetyFilter
 from hardware.spec import load_spec
@@ -60,20 +60,18 @@ def main() -> None:
         before = guarded.stats.workspace_clamped
         with_us = _best_us(lambda t=target, p=prev: guarded.filter(t, p), args.calls, args.repeats)
         ref_us = _best_us(lambda t=target, p=prev: reference.filter(t, p), args.calls, args.repeats)
-        print(
-            json.dumps(
-                {
-                    "bench": "safety_filter",
-                    "case": name,
-                    "guard_changed_command": guarded.stats.workspace_clamped > before,
-                    "us_per_call": round(with_us, 2),
-                    "reference_us_per_call": round(ref_us, 2),
-                    "ratio": round(with_us / ref_us, 3),
-                    "added_us": round(with_us - ref_us, 2),
-                    "calls": args.calls,
-                    "repeats": args.repeats,
-                }
-            )
+        emit_row(
+            {
+                "bench": "safety_filter",
+                "case": name,
+                "guard_changed_command": guarded.stats.workspace_clamped > before,
+                "us_per_call": round(with_us, 2),
+                "reference_us_per_call": round(ref_us, 2),
+                "ratio": round(with_us / ref_us, 3),
+                "added_us": round(with_us - ref_us, 2),
+                "calls": args.calls,
+                "repeats": args.repeats,
+            }
         )
 
 

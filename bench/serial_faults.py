@@ -20,7 +20,6 @@ Usage: python bench/serial_faults.py [--commands 100000] [--byte-commands 5000] 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -29,6 +28,8 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from support.load import emit_row
 
 from hardware.emulator import Emulator, EmulatorConfig, FaultConfig
 from hardware.errors import HardwareError
@@ -48,7 +49,7 @@ def emit(
     if ok is not None:
         row["pass"] = bool(ok)
     row.update(extra)
-    print(json.dumps(row), flush=True)
+    emit_row(row)
 
 
 def fault_run(n: int, faults: FaultConfig, retries: int, label: str) -> bool:

@@ -13,7 +13,6 @@ Usage: python bench/serial_latency.py [--steps 1000]
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -21,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from support.load import emit_row
 
 from hardware.emulator import Emulator, EmulatorConfig
 from hardware.serial_arm import SerialArm
@@ -54,23 +55,20 @@ def measure(protocol: str, baud: int, steps: int) -> bool:
     wire_ms = wire_bytes * 10.0 / baud * 1000.0
     p50, p99 = (float(np.percentile(times, q)) * 1000.0 for q in (50, 99))
     ok = p99 < PERIOD_MS
-    print(
-        json.dumps(
-            {
-                "metric": f"roundtrip_{protocol}_{baud}",
-                "value": round(p50, 3),
-                "unit": "ms (p50, command+read_state)",
-                "p99_ms": round(p99, 3),
-                "max_ms": round(float(times.max()) * 1000.0, 3),
-                "wire_ms": round(wire_ms, 3),
-                "bytes_per_step": round(wire_bytes, 1),
-                "overhead_ratio": round(p50 / wire_ms, 2),
-                "steps": steps,
-                "target": f"p99 < {PERIOD_MS:.0f} ms (one 20 Hz period)",
-                "pass": ok,
-            }
-        ),
-        flush=True,
+    emit_row(
+        {
+            "metric": f"roundtrip_{protocol}_{baud}",
+            "value": round(p50, 3),
+            "unit": "ms (p50, command+read_state)",
+            "p99_ms": round(p99, 3),
+            "max_ms": round(float(times.max()) * 1000.0, 3),
+            "wire_ms": round(wire_ms, 3),
+            "bytes_per_step": round(wire_bytes, 1),
+            "overhead_ratio": round(p50 / wire_ms, 2),
+            "steps": steps,
+            "target": f"p99 < {PERIOD_MS:.0f} ms (one 20 Hz period)",
+            "pass": ok,
+        }
     )
     return ok
 

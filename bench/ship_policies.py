@@ -13,7 +13,9 @@ statistics as numbers), named in the card's ``checkpoint``: ``sim2real adapt`` f
 them. ``--add-checkpoint`` adds them to an already shipped policy without measuring again, after
 checking that the run's policy is the shipped ONNX (parity).
 
-Prints JSON lines; the card keeps the figures with the date and the machine.
+Prints JSON lines; the card keeps the figures with the date and the machine. With
+``--record training`` the held-out figures also become records, which the benchmark pages show
+(``bench/pages.py``; ``tests/bench/test_pages.py`` holds cards and records to each other).
 """
 
 from __future__ import annotations
@@ -25,12 +27,14 @@ import os
 import platform
 from pathlib import Path
 
+from support.load import emit_row
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 
 def emit(metric: str, value: object, unit: str = "", **extra: object) -> None:
-    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+    emit_row({"metric": metric, "value": value, "unit": unit, **extra})
 
 
 def ship_checkpoint(run: str, name: str) -> dict[str, object]:
@@ -116,8 +120,14 @@ def main() -> None:
         figures[f"env_success_dr_{dr}_ci95"] = [
             round(float(v), 4) for v in ev["success_rate_wilson95"]
         ]
-        emit(
-            f"env_success_dr_{dr}", ev["success_rate"], "fraction", ci95=ev["success_rate_wilson95"]
+        emit(  # the card's own numbers: bench/pages.py checks the records against the card
+            f"env_success_dr_{dr}",
+            figures[f"env_success_dr_{dr}"],
+            "fraction",
+            ci95=figures[f"env_success_dr_{dr}_ci95"],
+            policy=a.name,
+            episodes=a.episodes,
+            table="Shipped policies: held-out success in their env",
         )
     figures["episodes"] = a.episodes
     import gymnasium as gym

@@ -14,7 +14,6 @@ cube within 2 cm of the lift point at the episode's last step). Prints JSON line
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import time
@@ -25,6 +24,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import torch
+from support.load import emit_row
 
 from sim2real.evaluate import EvalTarget, evaluate
 from sim2real.train import resolve_config, train
@@ -40,9 +40,7 @@ TARGET_MINUTES = 60.0
 
 
 def emit(metric: str, value: float, unit: str, **extra: Any) -> None:
-    print(
-        json.dumps({"metric": metric, "value": round(value, 4), "unit": unit, **extra}), flush=True
-    )
+    emit_row({"metric": metric, "value": round(value, 4), "unit": unit, **extra})
 
 
 def main() -> None:

@@ -19,7 +19,6 @@ Run: ``nice -n 10 .venv/bin/python bench/train_pixels_cost.py [--quick] [--round
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import tempfile
@@ -32,6 +31,7 @@ os.environ.setdefault("LP_NUM_THREADS", "0")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch as th
+from support.load import emit_row
 
 from sim2real.train import resolve_config, train
 
@@ -55,9 +55,7 @@ QUICK_STEPS = {"ppo": 2048, "dqn": 1200, "distill": 2048}
 
 
 def emit(metric: str, value: float, unit: str, **extra: object) -> None:
-    print(
-        json.dumps({"metric": metric, "value": round(value, 4), "unit": unit, **extra}), flush=True
-    )
+    emit_row({"metric": metric, "value": round(value, 4), "unit": unit, **extra})
 
 
 def run_once(variant: str, steps: int, dr: str, root: Path) -> tuple[float, float]:

@@ -34,6 +34,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 import yaml
+from support.load import emit_row
 
 import sim2real.envs  # noqa: F401  (registers the env ids)
 from sim2real.evaluate import EvalTarget, evaluate
@@ -48,7 +49,7 @@ WALL_TARGET_S = 600.0
 
 def emit(metric: str, value: float, unit: str, **extra: Any) -> None:
     v = round(value, 4) if isinstance(value, float) and np.isfinite(value) else value
-    print(json.dumps({"metric": metric, "value": v, "unit": unit, **extra}), flush=True)
+    emit_row({"metric": metric, "value": v, "unit": unit, **extra})
 
 
 def preset_hash(algo: str) -> str:

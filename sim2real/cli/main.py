@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
+from sim2real.cli.examples import describe
 from sim2real.cli.signals import Received, exit_code_for, interrupts_as_keyboard
 
 # Which install extra (pyproject.toml) provides a third-party module a command may import.
@@ -115,6 +116,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
             module = importlib.import_module(cmd.module)
             module.add_arguments(p)
             p.set_defaults(_run=module.run)
+        describe(p, cmd.name, cmd.help)  # its examples (and its subcommands', once added)
     return parser
 
 

@@ -2,7 +2,7 @@
 the observation and the true distance, one call each side of the physics.
 
 Why: the numpy layers cost ~100 calls on 3-element arrays per step, more than half the physics
-again (BENCHMARKS.md, "The step path"). Each kernel here does the *same* floating-point
+again (docs/studies/sim-speed.md, "The step path"). Each kernel here does the *same* floating-point
 operations in the same order as its numpy reference, so the envs return the same bits
 (``tests/sim2real/envs/test_step_pin.py``); ``tests/sim2real/envs/test_fused.py`` holds every
 kernel equal to its reference on random inputs:

@@ -26,7 +26,7 @@ The learner must keep ``step`` coming at the control rate: gradient updates belo
 thread (the arm's watchdog e-stops an arm left without commands), and the stepping thread
 belongs at the deploy loop's priority (``deploy.realtime.control_thread_priority``, as
 ``run_policy`` runs the loop): at normal priority the mock arm's real-time process and the rest
-of the machine preempt it (bench/arm_env_timing.py, BENCHMARKS.md).
+of the machine preempt it (bench/arm_env_timing.py; docs/studies/learning-on-the-arm.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 imports: the CLI's parser reads them at start-up).
 
 Measured with ``bench/finetune_proxy.py`` (the learner's own code on the training env forced to
-the hard plant, faster than real time; BENCHMARKS.md "Learning on the arm (issue 21)"), DDPG
+the hard plant, faster than real time; docs/studies/learning-on-the-arm.md, "Learning on the arm (issue 21)"), DDPG
 reach, 7,000 env steps (what 15 arm minutes hold): without relabelling no setting left the
 zero-shot interval (0.10-0.13 -> 0.18-0.26); hindsight relabelling took it to 0.74-0.76 (share
 0.5-0.8) and, with exploration noise 0.2 instead of the sources' 0.1, to 0.86. utd 2 and 4, TD3,

@@ -96,7 +96,7 @@ def _teacher_frames(n: int) -> tuple[th.Tensor, th.Tensor]:
 def test_wrapped_cnn_gets_sb3s_cnn_heads_and_the_student_fits_the_teacher() -> None:
     """SB3 puts no MLP between its NatureCNN and the heads; wrapped in the pixel actor, the CNN
     gets the same (a 64-64 tanh MLP there kept the distilled student at the label marginal on
-    17k frames, BENCHMARKS.md); a preset's own net_arch still wins. The kwargs assertions guard
+    17k frames, docs/studies/pixels.md); a preset's own net_arch still wins. The kwargs assertions guard
     that default; the fit below shows the default path learns (96 frames are too few to show the
     trap: with the MLP they are memorised too)."""
     from sim2real.train.extractors import resolve_policy_kwargs
