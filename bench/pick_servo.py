@@ -17,7 +17,8 @@ Prints one JSON line per DR preset: ``pick_teacher_success`` (value = success ra
 Wilson interval, the failure classes, the median step of the first success, and env steps per
 CPU-second.
 
-Run: ``nice -n 15 .venv/bin/python bench/pick_servo.py [--episodes 200] [--dr default,none]``.
+Run: ``nice -n 15 .venv/bin/python bench/pick_servo.py [--episodes 200] [--dr default,none]
+[--record training]``.
 """
 
 from __future__ import annotations
@@ -97,6 +98,9 @@ def run(dr: str, episodes: int) -> None:
         "pick_teacher_success",
         round(wins / episodes, 4),
         "fraction",
+        label=f"scripted pick on the truth (`pick_servo`), held-out success, DR `{dr}`",
+        table="Pick: the privileged teacher (the ceiling)",
+        variant=dr,
         teacher="pick_servo",
         dr=dr,
         episodes=episodes,
