@@ -1,14 +1,12 @@
-"""Wiring for ``sim2real deploy``: one registry of backends, each building (arm, perception,
-world) around the same loop, for any task. Everything opened is closed by one ExitStack, in
-reverse order, whatever happens."""
+"""Wiring for ``sim2real deploy``: the builders of the backends ``connection.BACKENDS``
+registers, each opening (arm, perception, world) around the same loop, for any task. Everything
+opened is closed by one ExitStack, in reverse order, whatever happens."""
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,81 +14,28 @@ import numpy as np
 
 from hardware.arm import ArmBase
 from hardware.spec import ArmSpec
+from sim2real.deploy.connection import BACKENDS, PERCEPTIONS, SIM_CLOCKS, ArmConnection
 from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig
 from sim2real.deploy.perception import MarkerLayout, OraclePerception, Perception, StereoPerception
 from sim2real.deploy.policy_io import PolicyIO, policy_io
 from sim2real.deploy.realtime import control_thread_priority
-from sim2real.errors import ConfigError, UnknownNameError
+from sim2real.errors import ConfigError
 
 if TYPE_CHECKING:  # worlds import MuJoCo; the deploy profile runs without it
     from sim2real.deploy.worlds import World
 
 
-@dataclass(frozen=True)
-class DeployOptions:
-    backend: str = "mock"
-    perception: str = "cameras"  # serial: cameras | fk (forward kinematics, no cameras)
-    protocol: str = "s2r"
-    port: str | None = None
-    baud: int | None = None
-    joint_calibration: Path | None = None
-    cameras: tuple[int, int] = (0, 1)
-    stereo_calibration: Path | None = None
-    base_T_left: np.ndarray | None = None  # noqa: N815 - frame names are part of the name
-    markers: Path | None = None  # marker layout YAML (a real rig); default: the mock rig's
-    dry_run: bool = False
-    camera_timeout_s: float | None = None  # None: 1 s for real cameras, 5 s for the mock's
-    camera_fps: float = 30.0
-    camera_nice: int = 10  # mock: the render process yields to the control loop
-    mock_nice: int = 5  # mock: the arm's process (emulator + physics) yields to the loop too
-    mock_switch_interval_s: float | None = None  # mock: the arm process's GIL switch interval
-    # mock, with realtime and the Python firmware: the arm's process at SCHED_FIFO below the loop
-    mock_realtime: bool = True
-    # the control loop's thread at real-time priority (SCHED_FIFO) where the OS allows it
-    realtime: bool = True
-    camera_fails_after_s: float | None = None  # mock fault injection: the cameras hang
-    plant: str | Path | None = None  # mock: the arm as it is (a plant file or preset)
-    firmware: str = "python"  # mock: the Python firmware model or the AVR binary in simavr
-    # mock/sim only: a longer host and firmware watchdog (and serial reply timeout, 1/8 of it)
-    # than the spec's, for simulations on a machine too loaded to hold the real ones (tests
-    # under pytest -n 2). A real arm keeps the spec's.
-    watchdog_s: float | None = None
-    # sim: "realtime" lets physics run on with the wall clock, as a real arm does while the host
-    # thinks; "lockstep" advances it one control period per command, as the env steps, whatever
-    # the machine's load (bench/deploy_mock.py measures sim/env on it)
-    sim_clock: str = "realtime"
-    emulator_options: dict[str, Any] = field(default_factory=dict)
+# A deploy's options are the arm connection (``connection.ArmConnection``): the name is kept
+# for the code and scripts that build one by it.
+DeployOptions = ArmConnection
 
-    def __post_init__(self) -> None:
-        if self.backend not in BACKENDS:
-            raise UnknownNameError("backend", self.backend, BACKENDS)
-        if self.backend == "serial" and not self.port:
-            raise ConfigError("--backend serial needs --port (for example /dev/ttyUSB0)")
-        if self.perception not in PERCEPTIONS:
-            raise UnknownNameError("perception", self.perception, PERCEPTIONS)
-        if self.perception != "cameras" and self.backend != "serial":
-            raise ConfigError(f"--perception is for --backend serial, not {self.backend!r}")
-        if self.dry_run and self.backend != "serial":
-            raise ConfigError(f"--dry-run is for --backend serial, not {self.backend!r}")
-        if self.plant is not None and self.backend != "mock":
-            raise ConfigError(f"--plant is for --backend mock, not {self.backend!r}")
-        if self.firmware != "python" and self.backend != "mock":
-            raise ConfigError(f"--firmware is for --backend mock, not {self.backend!r}")
-        if self.sim_clock not in SIM_CLOCKS:
-            raise UnknownNameError("sim clock", self.sim_clock, SIM_CLOCKS)
-        if self.watchdog_s is not None and self.backend == "serial":
-            raise ConfigError("--watchdog-s is for --backend mock|sim: a real arm keeps its spec's")
-        if not 0 <= self.mock_nice <= 19:
-            raise ConfigError(f"mock_nice {self.mock_nice} not in [0, 19] (a niceness)")
-        if not 1.0 <= self.camera_fps <= 240.0:
-            raise ConfigError(f"camera_fps {self.camera_fps} not in [1, 240]")
 
+__all__ = ["BACKENDS", "PERCEPTIONS", "SIM_CLOCKS", "DeployOptions", "deploy", "run_policy"]
 
 Built = tuple[ArmBase, Perception, "World"]
-Builder = Callable[[ArmSpec, PolicyIO, DeployOptions, contextlib.ExitStack], Built]
 
 
-def _build_sim(
+def build_sim(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
     from sim2real.deploy.sim_arm import SimArm
@@ -116,7 +61,7 @@ def _scene(io: PolicyIO) -> str:
     return TASKS[io.task].scene
 
 
-def _build_mock(
+def build_mock(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
     """The mock arm in its own process (emulator on a pty + MuJoCo physics), the cameras
@@ -124,7 +69,6 @@ def _build_mock(
     import mujoco
 
     from hardware.emulator.server import EmulatorConfig
-    from hardware.plant import Plant, load_plant
     from hardware.serial_arm import SerialArm
     from sim2real.deploy.mock_arm import MockArmJob, MockArmProcess
     from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
@@ -132,12 +76,7 @@ def _build_mock(
     from sim2real.deploy.worlds import MockWorld
     from sim2real.model import RigSpec, build_mjcf
 
-    plant = Plant.nominal(spec) if opts.plant is None else load_plant(opts.plant)
-    plant.check_against(spec)
-    if opts.watchdog_s is not None:  # the device's watchdog lives in the plant's firmware
-        safety = dataclasses.replace(plant.spec.safety, watchdog_timeout_s=opts.watchdog_s)
-        plant = dataclasses.replace(plant, spec=dataclasses.replace(plant.spec, safety=safety))
-    _check_firmware(opts)
+    plant = opts.plant_for(spec)  # checked against the spec, its watchdog relaxed if asked
     rig, scene = RigSpec(), _scene(io)
     xml = build_mjcf(plant.spec, scene, rig, markers=True)
     model = mujoco.MjModel.from_xml_string(xml)
@@ -166,14 +105,17 @@ def _build_mock(
         from calibration.triangulate import StereoRig
 
         stereo = StereoRig.load(opts.stereo_calibration)
-    if opts.base_T_left is not None:
-        base_T_left = opts.base_T_left
-    relaxed: dict[str, Any] = {}
-    if opts.watchdog_s is not None:  # a loaded machine: the arm's process may answer late too
-        relaxed = {"host_watchdog_s": opts.watchdog_s, "timeout_s": max(0.05, opts.watchdog_s / 8)}
-    # a host-side joint calibration (adapt's fitted zero offsets) acts on the mock as on a bus
+    registered = opts.load_registration()  # the user's registration of the rendered rig
+    if registered is not None:
+        base_T_left = registered
+    # a host-side joint calibration (adapt's fitted zero offsets) acts on the mock as on a bus;
+    # on a loaded machine (watchdog_s) the arm's process may answer late too
     arm = SerialArm(
-        spec, arm_process.port, opts.protocol, calibration=opts.joint_calibration, **relaxed
+        spec,
+        arm_process.port,
+        opts.protocol,
+        calibration=opts.joint_calibration,
+        **opts.relaxed_host(),
     )
     stack.enter_context(arm)
     arm.emulator = arm_process  # type: ignore[attr-defined]  # tests reach the mock through the arm
@@ -199,18 +141,6 @@ def _mock_priority(opts: DeployOptions) -> int | None:
     return None
 
 
-def _check_firmware(opts: DeployOptions) -> None:
-    """Refused in the host, before the arm's process starts."""
-    if opts.firmware == "python":
-        return
-    from hardware.emulator import FIRMWARES
-
-    if opts.firmware not in FIRMWARES:
-        raise UnknownNameError("firmware", opts.firmware, FIRMWARES)
-    if opts.protocol != "s2r":
-        raise ConfigError(f"--firmware {opts.firmware} speaks s2r, not {opts.protocol!r}")
-
-
 def _stereo_perception(
     frames: Any,
     stereo: Any,
@@ -233,7 +163,7 @@ def _stereo_perception(
     return perception
 
 
-def _build_serial(
+def build_serial(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
     if opts.perception == "fk":  # no cameras (and no MuJoCo): sim2real.deploy.kinematic
@@ -245,10 +175,10 @@ def _build_serial(
     from sim2real.deploy.frames import OpenCVStereoCameras
     from sim2real.deploy.worlds import CameraWorld
 
-    if opts.stereo_calibration is None or opts.base_T_left is None:
-        raise ConfigError(
-            "--backend serial needs --calibration (stereo) and --registration (base_T_cam)"
-        )
+    opts.require_cameras()
+    assert opts.stereo_calibration is not None and opts.port is not None
+    base_T_left = opts.load_registration()
+    assert base_T_left is not None
     stereo = StereoRig.load(opts.stereo_calibration)
     if stereo.left.image_size != stereo.right.image_size:
         raise ConfigError(
@@ -258,16 +188,10 @@ def _build_serial(
     frames = OpenCVStereoCameras(opts.cameras, stereo.left.image_size, opts.camera_timeout_s or 1.0)
     stack.callback(frames.close)
     frames.start()
-    assert opts.port is not None
     arm = SerialArm(spec, opts.port, opts.protocol, opts.baud, opts.joint_calibration)
     stack.enter_context(arm)
-    perception = _stereo_perception(frames, stereo, opts.base_T_left, spec, io, opts, stack)
+    perception = _stereo_perception(frames, stereo, base_T_left, spec, io, opts, stack)
     return arm, perception, CameraWorld()
-
-
-PERCEPTIONS: tuple[str, ...] = ("cameras", "fk")
-SIM_CLOCKS: tuple[str, ...] = ("lockstep", "realtime")  # sim_arm.CLOCKS, without MuJoCo
-BACKENDS: dict[str, Builder] = {"sim": _build_sim, "mock": _build_mock, "serial": _build_serial}
 
 
 def deploy(
