@@ -66,31 +66,16 @@ def build_mock(
 ) -> Built:
     """The mock arm in its own process (emulator on a pty + MuJoCo physics), the cameras
     rendering in theirs; the host holds only the serial port, the channel and perception."""
-    import mujoco
-
     from hardware.emulator.server import EmulatorConfig
     from hardware.serial_arm import SerialArm
     from sim2real.deploy.mock_arm import MockArmJob, MockArmProcess
-    from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
-    from sim2real.deploy.virtual_cameras import stereo_rig_of
     from sim2real.deploy.worlds import MockWorld
-    from sim2real.model import RigSpec, build_mjcf
+    from sim2real.model import RigSpec
 
     plant = opts.plant_for(spec)  # checked against the spec, its watchdog relaxed if asked
     rig, scene = RigSpec(), _scene(io)
-    xml = build_mjcf(plant.spec, scene, rig, markers=True)
-    model = mujoco.MjModel.from_xml_string(xml)
-    cam = rig.cameras[0]
-    # Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
-    # arrive late rather than never, so its timeout is longer than a USB camera's.
-    cameras = RenderedStereoCameras(
-        RenderConfig(xml=xml, width_px=cam.width_px, height_px=cam.height_px,
-                     fps=opts.camera_fps, nice=opts.camera_nice,
-                     timeout_s=opts.camera_timeout_s or 5.0),
-        model.nq, model.nmocap,
-    )  # fmt: skip
-    stack.callback(cameras.close)
-    cameras.start()
+    stereo, base_T_left = _mock_stereo(rig, opts)  # its files read before anything starts
+    cameras = _mock_cameras(plant.spec, scene, rig, opts, stack)
     job = MockArmJob(
         plant=plant, scene=scene, protocol=opts.protocol, firmware=opts.firmware,
         emulator_config=EmulatorConfig(**opts.emulator_options), rig=rig,
@@ -100,14 +85,6 @@ def build_mock(
     )  # fmt: skip
     arm_process = stack.enter_context(MockArmProcess(job))
     world = MockWorld(arm_process, cameras)
-    stereo, base_T_left = stereo_rig_of(rig)
-    if opts.stereo_calibration is not None:  # the user's calibration of the rendered rig
-        from calibration.triangulate import StereoRig
-
-        stereo = StereoRig.load(opts.stereo_calibration)
-    registered = opts.load_registration()  # the user's registration of the rendered rig
-    if registered is not None:
-        base_T_left = registered
     # a host-side joint calibration (adapt's fitted zero offsets) acts on the mock as on a bus;
     # on a loaded machine (watchdog_s) the arm's process may answer late too
     arm = SerialArm(
@@ -122,13 +99,49 @@ def build_mock(
     arm.world = world  # type: ignore[attr-defined]
     perception = _stereo_perception(cameras, stereo, base_T_left, spec, io, opts, stack)
     if opts.camera_fails_after_s is not None:  # fault injection: after the first frames
-        import threading
-
         timer = threading.Timer(opts.camera_fails_after_s, cameras.freeze)
         timer.daemon = True
         timer.start()
         stack.callback(timer.cancel)
     return arm, perception, world
+
+
+def _mock_cameras(
+    plant_spec: ArmSpec, scene: str, rig: Any, opts: DeployOptions, stack: contextlib.ExitStack
+) -> Any:
+    """The rig's two cameras rendering the plant's scene in a process of their own, started.
+    Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
+    arrive late rather than never, so its timeout is longer than a USB camera's."""
+    import mujoco
+
+    from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
+    from sim2real.model import build_mjcf
+
+    xml = build_mjcf(plant_spec, scene, rig, markers=True)
+    model = mujoco.MjModel.from_xml_string(xml)
+    cam = rig.cameras[0]
+    cameras = RenderedStereoCameras(
+        RenderConfig(xml=xml, width_px=cam.width_px, height_px=cam.height_px,
+                     fps=opts.camera_fps, nice=opts.camera_nice,
+                     timeout_s=opts.camera_timeout_s or 5.0),
+        model.nq, model.nmocap,
+    )  # fmt: skip
+    stack.callback(cameras.close)
+    cameras.start()
+    return cameras
+
+
+def _mock_stereo(rig: Any, opts: DeployOptions) -> tuple[Any, np.ndarray]:
+    """The rendered rig's stereo model and registration, or the user's calibration of it."""
+    from sim2real.deploy.virtual_cameras import stereo_rig_of
+
+    stereo, base_T_left = stereo_rig_of(rig)
+    if opts.stereo_calibration is not None:
+        from calibration.triangulate import StereoRig
+
+        stereo = StereoRig.load(opts.stereo_calibration)
+    registered = opts.load_registration()
+    return stereo, base_T_left if registered is None else registered
 
 
 def _mock_priority(opts: DeployOptions) -> int | None:
