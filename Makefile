@@ -53,6 +53,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports  # the layers' import contracts ([tool.importlinter] in pyproject.toml)
 
 format: $(STAMP)
 	$(BIN)/ruff format .

@@ -186,8 +186,8 @@ def main() -> None:
             t0 = time.perf_counter()
             # sim on the lockstep clock by default (one period of physics per command, as the
             # env steps): sim/env then measures the pipeline, not this machine's load
-            opts = DeployOptions(backend=backend, watchdog_s=args.watchdog_s,
-                                 sim_clock=args.sim_clock)  # fmt: skip
+            clock = {"sim_clock": args.sim_clock} if backend == "sim" else {}  # sim's own
+            opts = DeployOptions(backend=backend, watchdog_s=args.watchdog_s, **clock)
             try:
                 res = deploy(ref, spec, opts,
                              LoopConfig(episodes=args.episodes, placements=placements))  # fmt: skip

@@ -102,7 +102,7 @@ def sim_episodes(
     clock: str = "lockstep",
 ) -> tuple[list[Any], dict[str, np.ndarray]]:
     """The same placements on the sim backend; (episode records, the log's rows)."""
-    import sim2real.deploy.loop as loop_mod
+    import sim2real.deploy.session as session_mod
     import sim2real.envs.pick as pick
     from hardware.spec import load_spec
     from sim2real.deploy.loop import LoopConfig
@@ -127,19 +127,19 @@ def sim_episodes(
 
     patches: list[tuple[Any, str, Any]] = [
         (pick.PickContract, "placement", placement),
-        (loop_mod.DeployLoop, "_placement", same_placement),
+        (session_mod.ControlSession, "_placement", same_placement),
     ]
     if not drop_stop:
         patches.append((pick, "DROPPED_FROM_M", math.inf))
     if env_start:
-        real_wait = loop_mod.DeployLoop._wait_until_ready
+        real_wait = session_mod.ControlSession._wait_until_ready
 
         def wait(self: Any, contract: Any, ep: int) -> Any:
             real_wait(self, contract, ep)  # objects seen and still, as always
             self.arm.move_to(starts[episode["i"]])
             return self.perception.perceive(self.arm.read_state(), 0.0)
 
-        patches.append((loop_mod.DeployLoop, "_wait_until_ready", wait))
+        patches.append((session_mod.ControlSession, "_wait_until_ready", wait))
     saved = [(obj, name, getattr(obj, name)) for obj, name, _ in patches]
     for obj, name, value in patches:
         setattr(obj, name, value)

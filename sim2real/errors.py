@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Iterable
 
 
@@ -26,3 +27,12 @@ class ConfigError(Sim2RealError, ValueError):
 
 class RunDirError(Sim2RealError):
     """A run directory is missing, incomplete or corrupt."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so the same cleanup runs (``cli.signals`` raises it; the
+    library tells the two apart by this type, so it lives below the CLI)."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum

@@ -21,6 +21,8 @@ stage not done (the fine-tune continues from its own last checkpoint).
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import datetime as dt
 import json
 import math
@@ -28,14 +30,19 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hardware.atomic import atomic_write_bytes, atomic_write_text
 from hardware.spec import ArmSpec, load_spec
+from sim2real.deploy.connection import ArmConnection
 from sim2real.deploy.replayed import check_source
 from sim2real.errors import ConfigError, RunDirError, Sim2RealError
+
+if TYPE_CHECKING:
+    from hardware.serial_arm import SerialArm
+    from sim2real.adapt.excite import MarkerView
 
 STATUS_FORMAT = 1
 STAGES: tuple[str, ...] = (
@@ -47,7 +54,7 @@ STAGES: tuple[str, ...] = (
     "export",
     "evaluate",
 )
-BACKENDS = ("mock", "serial")
+RUNS_ON = ("mock", "serial")  # the backends adapt records and deploys on
 # PPO on the reach task ran 520 env steps/s on this 2-core CPU (runs/ship/reach-ppo-s0): the
 # default step cap is what --minutes could do at that rate; the wall clock stops it first.
 FINETUNE_STEPS_PER_S = 520.0
@@ -63,8 +70,7 @@ class DeployInterruptedError(Sim2RealError):
 class AdaptOptions:
     policy: str
     out: Path
-    backend: str = "mock"
-    plant: str | None = None
+    arm: ArmConnection = field(default_factory=ArmConnection)  # the mock arm by default
     spec: str | None = None
     minutes: float = 10.0
     finetune_steps: int | None = None  # a cap on fine-tune env steps (default from --minutes)
@@ -72,34 +78,16 @@ class AdaptOptions:
     logs: tuple[Path, ...] = ()  # given logs instead of recording
     servo_rate_hz: float = 100.0
     kinematic_s: float = 60.0
-    protocol: str = "s2r"
-    port: str | None = None
-    baud: int | None = None
-    joint_calibration: Path | None = None
-    cameras: tuple[int, int] = (0, 1)
-    stereo_calibration: Path | None = None
-    registration: Path | None = None
-    watchdog_s: float | None = None
     start_timeout_s: float = 10.0
     seed: int = 1_000_000
     placements: str = "loop"  # or "held-out": the deploys replay evaluate's placements
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.backend not in BACKENDS:
-            raise ConfigError(f"--backend {self.backend!r} is not one of {list(BACKENDS)}")
-        if self.plant is not None and self.backend != "mock":
-            raise ConfigError(f"--plant is the mock arm's truth: not for --backend {self.backend}")
-        if self.backend == "serial":
-            if not self.port:
-                raise ConfigError("--backend serial needs --port (for example /dev/ttyUSB0)")
-            if self.stereo_calibration is None or self.registration is None:
-                raise ConfigError(
-                    "--backend serial needs --calibration (stereo) and --registration (base_T_cam)"
-                )
-            if self.watchdog_s is not None:
-                raise ConfigError("--watchdog-s is for --backend mock: a real arm keeps its spec's")
-        check_source(self.placements, self.backend)
+        self.arm.require_backend(RUNS_ON)  # the connection checked its own options
+        if self.arm.backend == "serial":
+            self.arm.require_cameras()  # the kinematic excitation watches the wrist marker
+        check_source(self.placements, self.arm.backend)
         if not (math.isfinite(self.minutes) and self.minutes > 0):
             raise ConfigError(f"--minutes must be > 0, got {self.minutes!r}")
         if self.finetune_steps is not None and self.finetune_steps < 1:
@@ -114,8 +102,8 @@ class AdaptOptions:
     def identity(self) -> dict[str, Any]:
         return {
             "policy": self.policy,
-            "backend": self.backend,
-            "plant": self.plant,
+            "backend": self.arm.backend,
+            "plant": None if self.arm.plant is None else str(self.arm.plant),
             "spec": self.spec,
             "logs": [str(p) for p in self.logs],
         }
@@ -180,10 +168,8 @@ class Adapter:
         from sim2real.adapt.checkpoint import resolve_source
 
         resolve_source(self.opts.policy)
-        if self.opts.plant is not None:
-            from hardware.plant import load_plant
-
-            load_plant(self.opts.plant).check_against(self.spec)
+        if self.opts.arm.plant is not None:
+            self.opts.arm.plant_for(self.spec)  # loads and checks it against the spec
         if self.opts.logs and not self.done("record"):
             self._classify_logs()
 
@@ -252,24 +238,12 @@ class Adapter:
         return float(resolve_source(self.opts.policy).config.get("control_hz", 20.0))
 
     def _deploy(self, policy: str, spec: ArmSpec, calibration: Path | None) -> dict[str, Any]:
-        from calibration.registration import load_base_T_cam
         from sim2real.deploy.loop import LoopConfig
         from sim2real.deploy.replayed import placements
-        from sim2real.deploy.runner import DeployOptions, deploy
+        from sim2real.deploy.runner import deploy
 
         o = self.opts
-        opts = DeployOptions(
-            backend=o.backend,
-            protocol=o.protocol,
-            port=o.port,
-            baud=o.baud,
-            joint_calibration=calibration,
-            cameras=o.cameras,
-            stereo_calibration=o.stereo_calibration,
-            base_T_left=load_base_T_cam(o.registration) if o.registration else None,
-            plant=o.plant,
-            watchdog_s=o.watchdog_s,
-        )
+        arm = dataclasses.replace(o.arm, joint_calibration=calibration)  # before, or fitted
         config = LoopConfig(
             # the original policy's held-out episodes, before and after: the same objects
             placements=placements(o.placements, o.policy, o.episodes),
@@ -278,7 +252,7 @@ class Adapter:
             seed=o.seed,
             start_timeout_s=o.start_timeout_s,
         )
-        result = deploy(policy, spec, opts, config)
+        result = deploy(policy, spec, arm, config)
         if result.stopped_early is not None:
             if result.stopped_early.startswith("interrupted"):
                 raise DeployInterruptedError(f"deploy of {policy!r} interrupted; the arm is parked")
@@ -299,7 +273,7 @@ class Adapter:
 
     # ---- stages -----------------------------------------------------------------------------
     def _stage_zero_shot(self) -> dict[str, Any]:
-        figures = self._deploy(self.opts.policy, self.spec, self.opts.joint_calibration)
+        figures = self._deploy(self.opts.policy, self.spec, self.opts.arm.joint_calibration)
         self._write_json("zero_shot.json", figures)
         return figures
 
@@ -369,54 +343,14 @@ class Adapter:
         return {"logs": names, "given": [str(p) for p in self.opts.logs]}
 
     def _record_on_arm(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-        import contextlib
-        import dataclasses
-
-        from hardware.serial_arm import SerialArm
-        from sim2real.adapt.excite import CameraView, MarkerView, RenderedView
         from sim2real.adapt.excite import record_kinematic_excitation as kinematic
         from sim2real.sysid.record import record_excitation
 
-        o = self.opts
         with contextlib.ExitStack() as stack:
-            view: MarkerView
-            if o.backend == "mock":
-                from hardware.plant import Plant, load_plant
-
-                plant = Plant.nominal(self.spec) if o.plant is None else load_plant(o.plant)
-                plant.check_against(self.spec)
-                relaxed: dict[str, Any] = {}
-                if o.watchdog_s is not None:  # as the mock deploy: a loaded machine's timing
-                    safety = dataclasses.replace(plant.spec.safety, watchdog_timeout_s=o.watchdog_s)
-                    plant = dataclasses.replace(
-                        plant, spec=dataclasses.replace(plant.spec, safety=safety)
-                    )
-                    relaxed = {
-                        "host_watchdog_s": o.watchdog_s,
-                        "timeout_s": max(0.05, o.watchdog_s / 8),
-                    }
-                emulator = stack.enter_context(plant.emulator(o.protocol))
-                arm = SerialArm(
-                    self.spec, emulator.port, o.protocol, calibration=o.joint_calibration, **relaxed
-                )
-                view = RenderedView(plant.spec, emulator)
-            else:
-                from calibration.registration import load_base_T_cam
-                from calibration.triangulate import StereoRig
-                from sim2real.deploy.frames import OpenCVStereoCameras, wait_first
-
-                assert o.port is not None and o.stereo_calibration and o.registration
-                stereo = StereoRig.load(o.stereo_calibration)
-                frames = OpenCVStereoCameras(o.cameras, stereo.left.image_size)
-                stack.callback(frames.close)
-                frames.start()
-                wait_first(frames, 10.0)
-                arm = SerialArm(self.spec, o.port, o.protocol, o.baud, o.joint_calibration)
-                view = CameraView(frames, stereo, load_base_T_cam(o.registration))
-            stack.enter_context(arm)
+            arm, view = self._open_for_recording(stack)
             try:
-                servo = record_excitation(arm, o.servo_rate_hz)
-                kin, snaps = kinematic(arm, view, o.kinematic_s)
+                servo = record_excitation(arm, self.opts.servo_rate_hz)
+                kin, snaps = kinematic(arm, view, self.opts.kinematic_s)
                 arm.park()
             except KeyboardInterrupt:
                 with contextlib.suppress(Exception):  # a second Ctrl-C: torque off on close
@@ -424,6 +358,39 @@ class Adapter:
                 raise
         kin["ee_marker_m"] = view.markers_m(snaps)  # the mock renders here, the arm closed
         return servo, kin
+
+    def _open_for_recording(self, stack: contextlib.ExitStack) -> tuple[SerialArm, MarkerView]:
+        """The arm on its bus alone (the mock: the plant's emulator on a pty) and a view of
+        its wrist marker, opened on ``stack``."""
+        from hardware.serial_arm import SerialArm
+        from sim2real.adapt.excite import CameraView, RenderedView
+
+        conn = self.opts.arm
+        view: MarkerView
+        if conn.backend == "mock":
+            plant = conn.plant_for(self.spec)  # its watchdog relaxed as the mock deploy's
+            emulator = stack.enter_context(plant.emulator(conn.protocol))
+            arm = SerialArm(
+                self.spec, emulator.port, conn.protocol, calibration=conn.joint_calibration,
+                **conn.relaxed_host(),
+            )  # fmt: skip
+            view = RenderedView(plant.spec, emulator)
+        else:
+            from calibration.triangulate import StereoRig
+            from sim2real.deploy.frames import OpenCVStereoCameras, wait_first
+
+            assert conn.port is not None and conn.stereo_calibration is not None
+            base_T_left = conn.load_registration()
+            assert base_T_left is not None
+            stereo = StereoRig.load(conn.stereo_calibration)
+            frames = OpenCVStereoCameras(conn.cameras, stereo.left.image_size)
+            stack.callback(frames.close)
+            frames.start()
+            wait_first(frames, 10.0)
+            arm = SerialArm(self.spec, conn.port, conn.protocol, conn.baud, conn.joint_calibration)
+            view = CameraView(frames, stereo, base_T_left)
+        stack.enter_context(arm)
+        return arm, view
 
     def _record_paths(self) -> tuple[list[Path], list[Path]]:
         logs = self.status["figures"]["record"]["logs"]
@@ -497,12 +464,9 @@ class Adapter:
         spec = fitted_spec(self.spec, servo, kin)
         ranges = centred_ranges(dict(src.config["dr_ranges"]), servo, kin, spec, control_hz)
         DRConfig.from_dict("adapt", ranges)  # validated before anything is written
-        base = (
-            ArmCalibration.load(self.opts.joint_calibration)
-            if self.opts.joint_calibration
-            else None
-        )
-        cal = offset_calibration(spec, self.opts.protocol, kin.joint_offset_rad, base)
+        arm = self.opts.arm
+        base = ArmCalibration.load(arm.joint_calibration) if arm.joint_calibration else None
+        cal = offset_calibration(spec, arm.protocol, kin.joint_offset_rad, base)
         cal.check_spec(spec)
         cal.unit_limits(spec)  # the turned horns still reach every limit
         header = (

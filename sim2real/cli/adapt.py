@@ -13,16 +13,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sim2real.deploy.connection import add_arm_options, arm_connection
 from sim2real.deploy.replayed import PLACEMENT_SOURCES
 from sim2real.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from sim2real.adapt.pipeline import RUNS_ON
+
     parser.add_argument("policy", help="a run directory or a shipped policy name (with checkpoint)")
-    parser.add_argument("--backend", default="mock", help="mock | serial (default: mock)")
-    parser.add_argument(
-        "--plant", default=None, help="mock: the arm as it really is (plant YAML or preset)"
-    )
+    add_arm_options(parser, RUNS_ON)
     parser.add_argument(
         "--out", type=Path, default=None, help="output folder (default runs/adapt-<policy>-<utc>)"
     )
@@ -48,17 +48,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--servo-rate", type=float, default=100.0, help="servo excitation Hz")
     parser.add_argument("--spec", default=None, help="ArmSpec YAML (default: the shipped arm)")
-    parser.add_argument("--protocol", default="s2r", help="s2r | feetech | maestro")
-    parser.add_argument("--port", default=None, help="serial port (--backend serial)")
-    parser.add_argument("--baud", type=int, default=None)
-    parser.add_argument("--joint-calibration", type=Path, default=None, help="arm calibration YAML")
-    parser.add_argument("--cameras", default="0,1", help="left,right cv2.VideoCapture indices")
-    parser.add_argument("--calibration", type=Path, default=None, help="stereo calibration file")
-    parser.add_argument("--registration", type=Path, default=None, help="base_T_cam file")
-    parser.add_argument(
-        "--watchdog-s", type=float, default=None,
-        help="mock only: a longer watchdog than the spec's, for a loaded machine (tests)",
-    )  # fmt: skip
     parser.add_argument(
         "--start-timeout", type=float, default=10.0, help="seconds an episode waits for its objects"
     )
@@ -80,12 +69,6 @@ def _default_out(policy: str) -> Path:
 def run(args: argparse.Namespace) -> int:
     from sim2real.adapt.pipeline import Adapter, AdaptOptions, DeployInterruptedError, summary_table
 
-    try:
-        cams = tuple(int(c) for c in args.cameras.split(","))
-    except ValueError:
-        raise ConfigError(f"--cameras {args.cameras!r} must be two integers like 0,1") from None
-    if len(cams) != 2:
-        raise ConfigError(f"--cameras {args.cameras!r} must name exactly two cameras")
     if args.resume and args.out is None:
         raise ConfigError("--resume needs --out: the folder of the adaptation to continue")
     if args.resume and not (args.out / "status.json").is_file():
@@ -93,8 +76,7 @@ def run(args: argparse.Namespace) -> int:
     opts = AdaptOptions(
         policy=args.policy,
         out=args.out or _default_out(args.policy),
-        backend=args.backend,
-        plant=args.plant,
+        arm=arm_connection(args),
         spec=args.spec,
         minutes=args.minutes,
         finetune_steps=args.finetune_steps,
@@ -102,14 +84,6 @@ def run(args: argparse.Namespace) -> int:
         logs=tuple(args.logs),
         servo_rate_hz=args.servo_rate,
         kinematic_s=args.kinematic_s,
-        protocol=args.protocol,
-        port=args.port,
-        baud=args.baud,
-        joint_calibration=args.joint_calibration,
-        cameras=(cams[0], cams[1]),
-        stereo_calibration=args.calibration,
-        registration=args.registration,
-        watchdog_s=args.watchdog_s,
         start_timeout_s=args.start_timeout,
         seed=args.seed,
         placements=args.placements,

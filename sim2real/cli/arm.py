@@ -10,7 +10,8 @@
     sim2real arm find-port
     sim2real arm gen-limits --out hardware/firmware/arm3/src/limits.h
 
-Imports only the hardware layer (numpy + pyserial), so it runs on a Raspberry Pi beside the arm.
+Imports only the hardware layer (numpy + pyserial) and the arm connection's options
+(``sim2real.deploy.connection``, numpy alone), so it runs on a Raspberry Pi beside the arm.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from hardware.joint_calibration import (
 from hardware.protocols import PROTOCOLS, get_protocol
 from hardware.serial_arm import SerialArm
 from hardware.spec import ArmSpec, load_spec
+from sim2real.deploy.connection import add_arm_options, arm_connection
 
 KEEPALIVE_S = 0.1  # while waiting for the user, resend the targets this often (watchdogs)
 
@@ -93,11 +95,7 @@ def _add_spec(p: argparse.ArgumentParser) -> None:
 
 
 def _add_port(p: argparse.ArgumentParser, calibration: bool = True) -> None:
-    p.add_argument(
-        "--port", required=True, help="serial port or pyserial URL (/dev/ttyUSB0, socket://...)"
-    )
-    p.add_argument("--protocol", default="s2r", choices=sorted(PROTOCOLS), help="servo protocol")
-    p.add_argument("--baud", type=int, default=None, help="baud rate (default: the protocol's)")
+    add_arm_options(p, ("serial",), only=("port", "baud"))  # --port, --protocol, --baud
     p.add_argument("--timeout-ms", type=float, default=50.0, help="reply timeout per try")
     p.add_argument(
         "--maestro-crc",
@@ -216,15 +214,17 @@ def _open_arm(
     calibration: ArmCalibration | None = None,
     push_limits: bool = True,
 ) -> SerialArm:
+    conn = arm_connection(args)
+    assert conn.port is not None  # required on the command line
     return SerialArm(
         spec,
-        args.port,
-        protocol=args.protocol,
-        baud=args.baud,
+        conn.port,
+        protocol=conn.protocol,
+        baud=conn.baud,
         calibration=calibration if calibration is not None else _calibration(args, spec),
         timeout_s=args.timeout_ms / 1000.0,
         push_limits=push_limits,
-        protocol_options={"crc": True} if args.maestro_crc and args.protocol == "maestro" else None,
+        protocol_options={"crc": True} if args.maestro_crc and conn.protocol == "maestro" else None,
     )
 
 

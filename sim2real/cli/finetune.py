@@ -9,18 +9,14 @@ import math
 from pathlib import Path
 from typing import Any
 
-from sim2real.errors import ConfigError
+from sim2real.deploy.connection import add_arm_options, arm_connection
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from sim2real.finetune.defaults import LEARNER_DEFAULTS
 
     parser.add_argument("policy", help="a run directory (DDPG/TD3/SAC) or a shipped policy name")
-    parser.add_argument("--backend", default="mock", help="mock | serial (default: mock)")
-    parser.add_argument(
-        "--plant", default=None, help="mock: the arm as it really is (plant YAML or preset: "
-        "mild, moderate, hard); the policy keeps --spec"
-    )  # fmt: skip
+    add_arm_options(parser, ("mock", "serial"))
     parser.add_argument("--spec", default=None, help="ArmSpec YAML (default: the shipped arm)")
     parser.add_argument(
         "--minutes", type=float, default=15.0, help="arm minutes to learn for (this run)"
@@ -77,17 +73,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--start-timeout", type=float, default=10.0)
     parser.add_argument(
-        "--watchdog-s", type=float, default=None,
-        help="mock only: a longer watchdog than the spec's (a loaded machine); a real arm keeps it",
-    )  # fmt: skip
-    parser.add_argument("--protocol", default="s2r", help="s2r | feetech | maestro")
-    parser.add_argument("--port", default=None, help="serial port or pyserial URL (serial)")
-    parser.add_argument("--baud", type=int, default=None)
-    parser.add_argument("--joint-calibration", type=Path, default=None)
-    parser.add_argument("--cameras", default="0,1", help="left,right cv2.VideoCapture indices")
-    parser.add_argument("--calibration", type=Path, default=None, help="stereo calibration file")
-    parser.add_argument("--registration", type=Path, default=None, help="base_T_cam file")
-    parser.add_argument(
         "--record-dataset", type=Path, default=None, metavar="DIR",
         help="also write the episodes as a LeRobot dataset",
     )  # fmt: skip
@@ -97,32 +82,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hardware.spec import load_spec
-    from sim2real.deploy.runner import DeployOptions
     from sim2real.finetune.runner import FinetuneOptions, finetune
 
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
     )
-    if args.backend not in ("mock", "serial"):
-        raise ConfigError(f"--backend {args.backend!r} is not one of ['mock', 'serial']")
-    try:
-        cams = tuple(int(c) for c in args.cameras.split(","))
-    except ValueError:
-        raise ConfigError(f"--cameras {args.cameras!r} must be two integers like 0,1") from None
-    if len(cams) != 2:
-        raise ConfigError(f"--cameras {args.cameras!r} must name exactly two cameras")
-    base_T_left = None
-    if args.registration is not None:
-        from calibration.registration import load_base_T_cam
-
-        base_T_left = load_base_T_cam(args.registration)
+    opts = arm_connection(args)
     spec = load_spec(args.spec)
-    opts = DeployOptions(
-        backend=args.backend, protocol=args.protocol, port=args.port, baud=args.baud,
-        joint_calibration=args.joint_calibration, cameras=(cams[0], cams[1]),
-        stereo_calibration=args.calibration, base_T_left=base_T_left, plant=args.plant,
-        watchdog_s=args.watchdog_s,
-    )  # fmt: skip
     out = args.out or Path("runs") / f"finetune-{Path(args.policy).name}"
     fo = FinetuneOptions(
         policy=args.policy, out=out, deploy=opts, minutes=args.minutes, algo=args.algo,

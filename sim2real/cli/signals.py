@@ -20,15 +20,11 @@ from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any
 
+from sim2real.errors import Terminated
+
+__all__ = ["SIGNALS", "Received", "Terminated", "exit_code_for", "interrupts_as_keyboard"]
+
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so the same cleanup runs."""
-
-    def __init__(self, signum: int = signal.SIGTERM) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
 
 
 @dataclass

@@ -7,6 +7,7 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
+from sim2real.deploy.connection import add_arm_options, arm_connection
 from sim2real.errors import ConfigError
 
 
@@ -26,15 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--record", type=Path, default=None, help="run the excitation and write a log here"
     )
-    parser.add_argument("--backend", default="mock", help="mock | serial (with --record)")
-    parser.add_argument("--protocol", default="feetech", help="s2r | feetech | maestro")
-    parser.add_argument("--port", default=None, help="serial port (with --backend serial)")
+    # with --record: the arm to excite (the bus alone: no cameras, no joint calibration)
+    add_arm_options(parser, ("mock", "serial"), protocol="feetech", only=("port", "plant"))
     parser.add_argument("--rate", type=float, default=100.0, help="excitation rate in Hz")
-    parser.add_argument(
-        "--plant",
-        default=None,
-        help="with --record --backend mock: emulate this plant (file or mild|moderate|hard)",
-    )
     parser.add_argument(
         "--kinematics",
         nargs="+",
@@ -52,28 +47,24 @@ def _record(args: argparse.Namespace) -> int:
     from hardware.spec import load_spec
     from sim2real.sysid.record import record_excitation, save_log
 
+    conn = arm_connection(args)
     spec = load_spec(args.spec)
-    if args.plant is not None and args.backend != "mock":
-        raise ConfigError("--plant is the mock arm's truth: use it with --backend mock")
-    if args.backend == "mock":
+    if conn.backend == "mock":
         from hardware.emulator.server import Emulator
         from hardware.plant import load_plant
 
-        if args.plant is not None:
-            plant = load_plant(args.plant)
+        if conn.plant is not None:
+            plant = load_plant(conn.plant)
             plant.check_against(spec)
-            emulator = plant.emulator(args.protocol)
+            emulator = plant.emulator(conn.protocol)
         else:
-            emulator = Emulator(spec, args.protocol)
-        with emulator as emu, SerialArm(spec, emu.port, args.protocol) as arm:
-            log = record_excitation(arm, args.rate)
-    elif args.backend == "serial":
-        if not args.port:
-            raise ConfigError("--backend serial needs --port")
-        with SerialArm(spec, args.port, args.protocol) as arm:
+            emulator = Emulator(spec, conn.protocol)
+        with emulator as emu, SerialArm(spec, emu.port, conn.protocol) as arm:
             log = record_excitation(arm, args.rate)
     else:
-        raise ConfigError(f"--backend {args.backend!r} is not one of mock, serial")
+        assert conn.port is not None  # the connection needs it for a serial arm
+        with SerialArm(spec, conn.port, conn.protocol) as arm:
+            log = record_excitation(arm, args.rate)
     save_log(args.record, log)
     print(json.dumps({"log": str(args.record), "periods": len(log["t_s"])}))
     return 0

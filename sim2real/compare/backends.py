@@ -13,9 +13,8 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-from sim2real.cli.signals import Terminated
 from sim2real.compare.jobs import run_job
-from sim2real.errors import Sim2RealError
+from sim2real.errors import Sim2RealError, Terminated
 
 JobDict = dict[str, Any]
 

@@ -2,6 +2,7 @@
 
 from sim2real.datasets.lerobot import (
     CODEBASE_VERSION,
+    TASK_TEXT,
     DatasetError,
     DatasetSchema,
     Feature,
@@ -15,6 +16,7 @@ from sim2real.datasets.lerobot import (
 
 __all__ = [
     "CODEBASE_VERSION",
+    "TASK_TEXT",
     "DatasetError",
     "DatasetSchema",
     "Feature",

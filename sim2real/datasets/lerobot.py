@@ -65,6 +65,13 @@ INDEX_FEATURES: dict[str, str] = {
 }
 DTYPES: tuple[str, ...] = ("float32", "float64", "int64", "bool")
 IMAGE_PREFIX = "observation.images."
+# LeRobot's language task per sim2real task (the deploy recorder's and evaluate's episodes say
+# the same); an unknown task falls back to its own name or env id.
+TASK_TEXT: dict[str, str] = {
+    "reach": "move the tool tip to the target",
+    "pick": "pick up the cube and lift it to the goal",
+    "trace": "follow the seam with the tool tip",
+}
 VIDEO_CODEC, VIDEO_GOP, VIDEO_CRF = "libx264", 2, 23
 # Frames sampled per episode and camera for the image statistics (LeRobot samples too).
 IMAGE_STATS_SAMPLES = 20

@@ -471,7 +471,8 @@ class StereoPerception:
         return None if p is None else (p.left_bgr, p.right_bgr)
 
     @property
-    def _ee_seen(self) -> bool:
+    def ee_seen(self) -> bool:
+        """The last percept's tool came from the wrist marker (False: forward kinematics)."""
         return self._snapshot.ee_seen
 
     @property

@@ -28,8 +28,13 @@ class DeployRecorder:
         self, root: Path, spec: ArmSpec, io: PolicyIO, fps: float, cameras: bool,
         overwrite: bool = False,
     ) -> None:  # fmt: skip
-        from sim2real.datasets.lerobot import DatasetSchema, LeRobotWriter, arm_features, camera_key
-        from sim2real.evaluate.dataset import TASK_TEXT
+        from sim2real.datasets.lerobot import (
+            TASK_TEXT,
+            DatasetSchema,
+            LeRobotWriter,
+            arm_features,
+            camera_key,
+        )
 
         self.io = io
         self.objects = io.contract.objects

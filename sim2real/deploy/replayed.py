@@ -12,7 +12,7 @@ import numpy as np
 from sim2real.errors import ConfigError, UnknownNameError
 
 if TYPE_CHECKING:
-    from sim2real.evaluate.core import EvalTarget
+    from sim2real.held_out import EvalTarget
 
 Placements = tuple[Mapping[str, Any], ...]
 IN_VIEW_POOL = 3  # held-out episodes looked at per one kept, at most (trace keeps ~86 %)
@@ -25,7 +25,7 @@ def _loop(policy: str, episodes: int) -> Placements:
 def _held_out(policy: str, episodes: int) -> Placements:
     """``evaluate``'s held-out episodes under DR ``none`` (the nominal model: what the sim and
     mock worlds place objects in) that the rig can see; needs the simulator installed."""
-    from sim2real.evaluate.core import EvalTarget
+    from sim2real.held_out import EvalTarget
     from sim2real.policies import resolve_policy
 
     return tuple(held_out_in_view(EvalTarget.load(resolve_policy(policy)), episodes)[1])
@@ -41,7 +41,7 @@ def held_out_in_view(
     ``episodes``. ``evaluate`` on these seeds is then the paired figure."""
     from sim2real.deploy.placement import RigSight
     from sim2real.deploy.policy_io import policy_io
-    from sim2real.evaluate.core import held_out_placements
+    from sim2real.held_out import held_out_placements
 
     io = policy_io(target.spec, target.policy.meta)
     contract = io.contract

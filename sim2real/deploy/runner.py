@@ -1,14 +1,12 @@
-"""Wiring for ``sim2real deploy``: one registry of backends, each building (arm, perception,
-world) around the same loop, for any task. Everything opened is closed by one ExitStack, in
-reverse order, whatever happens."""
+"""Wiring for ``sim2real deploy``: the builders of the backends ``connection.BACKENDS``
+registers, each opening (arm, perception, world) around the same loop, for any task. Everything
+opened is closed by one ExitStack, in reverse order, whatever happens."""
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,81 +14,28 @@ import numpy as np
 
 from hardware.arm import ArmBase
 from hardware.spec import ArmSpec
+from sim2real.deploy.connection import BACKENDS, PERCEPTIONS, SIM_CLOCKS, ArmConnection
 from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig
 from sim2real.deploy.perception import MarkerLayout, OraclePerception, Perception, StereoPerception
 from sim2real.deploy.policy_io import PolicyIO, policy_io
 from sim2real.deploy.realtime import control_thread_priority
-from sim2real.errors import ConfigError, UnknownNameError
+from sim2real.errors import ConfigError
 
 if TYPE_CHECKING:  # worlds import MuJoCo; the deploy profile runs without it
     from sim2real.deploy.worlds import World
 
 
-@dataclass(frozen=True)
-class DeployOptions:
-    backend: str = "mock"
-    perception: str = "cameras"  # serial: cameras | fk (forward kinematics, no cameras)
-    protocol: str = "s2r"
-    port: str | None = None
-    baud: int | None = None
-    joint_calibration: Path | None = None
-    cameras: tuple[int, int] = (0, 1)
-    stereo_calibration: Path | None = None
-    base_T_left: np.ndarray | None = None  # noqa: N815 - frame names are part of the name
-    markers: Path | None = None  # marker layout YAML (a real rig); default: the mock rig's
-    dry_run: bool = False
-    camera_timeout_s: float | None = None  # None: 1 s for real cameras, 5 s for the mock's
-    camera_fps: float = 30.0
-    camera_nice: int = 10  # mock: the render process yields to the control loop
-    mock_nice: int = 5  # mock: the arm's process (emulator + physics) yields to the loop too
-    mock_switch_interval_s: float | None = None  # mock: the arm process's GIL switch interval
-    # mock, with realtime and the Python firmware: the arm's process at SCHED_FIFO below the loop
-    mock_realtime: bool = True
-    # the control loop's thread at real-time priority (SCHED_FIFO) where the OS allows it
-    realtime: bool = True
-    camera_fails_after_s: float | None = None  # mock fault injection: the cameras hang
-    plant: str | Path | None = None  # mock: the arm as it is (a plant file or preset)
-    firmware: str = "python"  # mock: the Python firmware model or the AVR binary in simavr
-    # mock/sim only: a longer host and firmware watchdog (and serial reply timeout, 1/8 of it)
-    # than the spec's, for simulations on a machine too loaded to hold the real ones (tests
-    # under pytest -n 2). A real arm keeps the spec's.
-    watchdog_s: float | None = None
-    # sim: "realtime" lets physics run on with the wall clock, as a real arm does while the host
-    # thinks; "lockstep" advances it one control period per command, as the env steps, whatever
-    # the machine's load (bench/deploy_mock.py measures sim/env on it)
-    sim_clock: str = "realtime"
-    emulator_options: dict[str, Any] = field(default_factory=dict)
+# A deploy's options are the arm connection (``connection.ArmConnection``): the name is kept
+# for the code and scripts that build one by it.
+DeployOptions = ArmConnection
 
-    def __post_init__(self) -> None:
-        if self.backend not in BACKENDS:
-            raise UnknownNameError("backend", self.backend, BACKENDS)
-        if self.backend == "serial" and not self.port:
-            raise ConfigError("--backend serial needs --port (for example /dev/ttyUSB0)")
-        if self.perception not in PERCEPTIONS:
-            raise UnknownNameError("perception", self.perception, PERCEPTIONS)
-        if self.perception != "cameras" and self.backend != "serial":
-            raise ConfigError(f"--perception is for --backend serial, not {self.backend!r}")
-        if self.dry_run and self.backend != "serial":
-            raise ConfigError(f"--dry-run is for --backend serial, not {self.backend!r}")
-        if self.plant is not None and self.backend != "mock":
-            raise ConfigError(f"--plant is for --backend mock, not {self.backend!r}")
-        if self.firmware != "python" and self.backend != "mock":
-            raise ConfigError(f"--firmware is for --backend mock, not {self.backend!r}")
-        if self.sim_clock not in SIM_CLOCKS:
-            raise UnknownNameError("sim clock", self.sim_clock, SIM_CLOCKS)
-        if self.watchdog_s is not None and self.backend == "serial":
-            raise ConfigError("--watchdog-s is for --backend mock|sim: a real arm keeps its spec's")
-        if not 0 <= self.mock_nice <= 19:
-            raise ConfigError(f"mock_nice {self.mock_nice} not in [0, 19] (a niceness)")
-        if not 1.0 <= self.camera_fps <= 240.0:
-            raise ConfigError(f"camera_fps {self.camera_fps} not in [1, 240]")
 
+__all__ = ["BACKENDS", "PERCEPTIONS", "SIM_CLOCKS", "DeployOptions", "deploy", "run_policy"]
 
 Built = tuple[ArmBase, Perception, "World"]
-Builder = Callable[[ArmSpec, PolicyIO, DeployOptions, contextlib.ExitStack], Built]
 
 
-def _build_sim(
+def build_sim(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
     from sim2real.deploy.sim_arm import SimArm
@@ -116,42 +61,21 @@ def _scene(io: PolicyIO) -> str:
     return TASKS[io.task].scene
 
 
-def _build_mock(
+def build_mock(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
     """The mock arm in its own process (emulator on a pty + MuJoCo physics), the cameras
     rendering in theirs; the host holds only the serial port, the channel and perception."""
-    import mujoco
-
     from hardware.emulator.server import EmulatorConfig
-    from hardware.plant import Plant, load_plant
     from hardware.serial_arm import SerialArm
     from sim2real.deploy.mock_arm import MockArmJob, MockArmProcess
-    from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
-    from sim2real.deploy.virtual_cameras import stereo_rig_of
     from sim2real.deploy.worlds import MockWorld
-    from sim2real.model import RigSpec, build_mjcf
+    from sim2real.model import RigSpec
 
-    plant = Plant.nominal(spec) if opts.plant is None else load_plant(opts.plant)
-    plant.check_against(spec)
-    if opts.watchdog_s is not None:  # the device's watchdog lives in the plant's firmware
-        safety = dataclasses.replace(plant.spec.safety, watchdog_timeout_s=opts.watchdog_s)
-        plant = dataclasses.replace(plant, spec=dataclasses.replace(plant.spec, safety=safety))
-    _check_firmware(opts)
+    plant = opts.plant_for(spec)  # checked against the spec, its watchdog relaxed if asked
     rig, scene = RigSpec(), _scene(io)
-    xml = build_mjcf(plant.spec, scene, rig, markers=True)
-    model = mujoco.MjModel.from_xml_string(xml)
-    cam = rig.cameras[0]
-    # Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
-    # arrive late rather than never, so its timeout is longer than a USB camera's.
-    cameras = RenderedStereoCameras(
-        RenderConfig(xml=xml, width_px=cam.width_px, height_px=cam.height_px,
-                     fps=opts.camera_fps, nice=opts.camera_nice,
-                     timeout_s=opts.camera_timeout_s or 5.0),
-        model.nq, model.nmocap,
-    )  # fmt: skip
-    stack.callback(cameras.close)
-    cameras.start()
+    stereo, base_T_left = _mock_stereo(rig, opts)  # its files read before anything starts
+    cameras = _mock_cameras(plant.spec, scene, rig, opts, stack)
     job = MockArmJob(
         plant=plant, scene=scene, protocol=opts.protocol, firmware=opts.firmware,
         emulator_config=EmulatorConfig(**opts.emulator_options), rig=rig,
@@ -161,32 +85,63 @@ def _build_mock(
     )  # fmt: skip
     arm_process = stack.enter_context(MockArmProcess(job))
     world = MockWorld(arm_process, cameras)
-    stereo, base_T_left = stereo_rig_of(rig)
-    if opts.stereo_calibration is not None:  # the user's calibration of the rendered rig
-        from calibration.triangulate import StereoRig
-
-        stereo = StereoRig.load(opts.stereo_calibration)
-    if opts.base_T_left is not None:
-        base_T_left = opts.base_T_left
-    relaxed: dict[str, Any] = {}
-    if opts.watchdog_s is not None:  # a loaded machine: the arm's process may answer late too
-        relaxed = {"host_watchdog_s": opts.watchdog_s, "timeout_s": max(0.05, opts.watchdog_s / 8)}
-    # a host-side joint calibration (adapt's fitted zero offsets) acts on the mock as on a bus
+    # a host-side joint calibration (adapt's fitted zero offsets) acts on the mock as on a bus;
+    # on a loaded machine (watchdog_s) the arm's process may answer late too
     arm = SerialArm(
-        spec, arm_process.port, opts.protocol, calibration=opts.joint_calibration, **relaxed
+        spec,
+        arm_process.port,
+        opts.protocol,
+        calibration=opts.joint_calibration,
+        **opts.relaxed_host(),
     )
     stack.enter_context(arm)
     arm.emulator = arm_process  # type: ignore[attr-defined]  # tests reach the mock through the arm
     arm.world = world  # type: ignore[attr-defined]
     perception = _stereo_perception(cameras, stereo, base_T_left, spec, io, opts, stack)
     if opts.camera_fails_after_s is not None:  # fault injection: after the first frames
-        import threading
-
         timer = threading.Timer(opts.camera_fails_after_s, cameras.freeze)
         timer.daemon = True
         timer.start()
         stack.callback(timer.cancel)
     return arm, perception, world
+
+
+def _mock_cameras(
+    plant_spec: ArmSpec, scene: str, rig: Any, opts: DeployOptions, stack: contextlib.ExitStack
+) -> Any:
+    """The rig's two cameras rendering the plant's scene in a process of their own, started.
+    Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
+    arrive late rather than never, so its timeout is longer than a USB camera's."""
+    import mujoco
+
+    from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
+    from sim2real.model import build_mjcf
+
+    xml = build_mjcf(plant_spec, scene, rig, markers=True)
+    model = mujoco.MjModel.from_xml_string(xml)
+    cam = rig.cameras[0]
+    cameras = RenderedStereoCameras(
+        RenderConfig(xml=xml, width_px=cam.width_px, height_px=cam.height_px,
+                     fps=opts.camera_fps, nice=opts.camera_nice,
+                     timeout_s=opts.camera_timeout_s or 5.0),
+        model.nq, model.nmocap,
+    )  # fmt: skip
+    stack.callback(cameras.close)
+    cameras.start()
+    return cameras
+
+
+def _mock_stereo(rig: Any, opts: DeployOptions) -> tuple[Any, np.ndarray]:
+    """The rendered rig's stereo model and registration, or the user's calibration of it."""
+    from sim2real.deploy.virtual_cameras import stereo_rig_of
+
+    stereo, base_T_left = stereo_rig_of(rig)
+    if opts.stereo_calibration is not None:
+        from calibration.triangulate import StereoRig
+
+        stereo = StereoRig.load(opts.stereo_calibration)
+    registered = opts.load_registration()
+    return stereo, base_T_left if registered is None else registered
 
 
 def _mock_priority(opts: DeployOptions) -> int | None:
@@ -197,18 +152,6 @@ def _mock_priority(opts: DeployOptions) -> int | None:
     if opts.realtime and opts.mock_realtime and opts.firmware == "python" and not niced():
         return CONTROL_PRIORITY - 10
     return None
-
-
-def _check_firmware(opts: DeployOptions) -> None:
-    """Refused in the host, before the arm's process starts."""
-    if opts.firmware == "python":
-        return
-    from hardware.emulator import FIRMWARES
-
-    if opts.firmware not in FIRMWARES:
-        raise UnknownNameError("firmware", opts.firmware, FIRMWARES)
-    if opts.protocol != "s2r":
-        raise ConfigError(f"--firmware {opts.firmware} speaks s2r, not {opts.protocol!r}")
 
 
 def _stereo_perception(
@@ -233,7 +176,7 @@ def _stereo_perception(
     return perception
 
 
-def _build_serial(
+def build_serial(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
     if opts.perception == "fk":  # no cameras (and no MuJoCo): sim2real.deploy.kinematic
@@ -245,10 +188,10 @@ def _build_serial(
     from sim2real.deploy.frames import OpenCVStereoCameras
     from sim2real.deploy.worlds import CameraWorld
 
-    if opts.stereo_calibration is None or opts.base_T_left is None:
-        raise ConfigError(
-            "--backend serial needs --calibration (stereo) and --registration (base_T_cam)"
-        )
+    opts.require_cameras()
+    assert opts.stereo_calibration is not None and opts.port is not None
+    base_T_left = opts.load_registration()
+    assert base_T_left is not None
     stereo = StereoRig.load(opts.stereo_calibration)
     if stereo.left.image_size != stereo.right.image_size:
         raise ConfigError(
@@ -258,16 +201,10 @@ def _build_serial(
     frames = OpenCVStereoCameras(opts.cameras, stereo.left.image_size, opts.camera_timeout_s or 1.0)
     stack.callback(frames.close)
     frames.start()
-    assert opts.port is not None
     arm = SerialArm(spec, opts.port, opts.protocol, opts.baud, opts.joint_calibration)
     stack.enter_context(arm)
-    perception = _stereo_perception(frames, stereo, opts.base_T_left, spec, io, opts, stack)
+    perception = _stereo_perception(frames, stereo, base_T_left, spec, io, opts, stack)
     return arm, perception, CameraWorld()
-
-
-PERCEPTIONS: tuple[str, ...] = ("cameras", "fk")
-SIM_CLOCKS: tuple[str, ...] = ("lockstep", "realtime")  # sim_arm.CLOCKS, without MuJoCo
-BACKENDS: dict[str, Builder] = {"sim": _build_sim, "mock": _build_mock, "serial": _build_serial}
 
 
 def deploy(

@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 
 from sim2real.datasets import (
+    TASK_TEXT,
     DatasetSchema,
     Feature,
     LeRobotWriter,
@@ -33,12 +34,6 @@ from sim2real.randomization import DRConfig
 
 # Observation fields recorded as named position estimates (base frame, m).
 ESTIMATE_FIELDS: dict[str, str] = {"tool": "ee_pos", "goal": "goal_pos", "cube": "cube_pos"}
-# LeRobot's language task per sim2real task; an unknown task falls back to the env id.
-TASK_TEXT: dict[str, str] = {
-    "reach": "move the tool tip to the target",
-    "pick": "pick up the cube and lift it to the goal",
-    "trace": "follow the seam with the tool tip",
-}
 STEP_FEATURES: dict[str, Feature] = {
     "next.reward": Feature((1,), "float32"),
     "next.success": Feature((1,), "bool"),

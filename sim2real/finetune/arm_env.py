@@ -4,13 +4,14 @@ real arm with the same observation, action and safety chain the deploy loop runs
 Learning on the arm is the deploy loop with a learner beside it. The env is built from the same
 parts as ``sim2real deploy``: a backend from ``runner.BACKENDS`` (the arm, its perception, its
 world), the policy's ``PolicyIO`` (the training env's ``ObservationBuilder`` and
-``ActionDecoder``, the task's ``DeployContract``), and a ``DeployLoop`` whose episode start,
-observation assembly, success view and safe stops it calls instead of copying them.
+``ActionDecoder``, the task's ``DeployContract``), and the deploy loop's ``ControlSession``,
+whose public steps (episode start, sense, observe, act, pace, safe stops) it drives instead of
+copying them.
 
-One ``step`` is one control period: decode the action against the last targets, send it through
-``Arm.command`` (the safety filter runs there, once), sleep to the next period (a late period is
-counted and logged, never an error), read the joints, perceive, judge the period with the
-contract, and build the next observation. The reward is the training env's own function
+One ``step`` is one control period: ``act`` (decode the action against the last targets, send it
+through ``Arm.command``: the safety filter runs there, once), ``pace`` (sleep to the next period;
+a late period is counted and logged, never an error), ``sense`` (read the joints, perceive, judge
+the period with the contract) and ``observe`` (the next observation). The reward is the training env's own function
 (``envs.base.REWARDS``) on the perceived goal error, the observation's ``goal_delta``; its
 success bonus uses the task's threshold, as ``Arm3Env.step`` does. A task that trains with a
 dense shaping term gets it from the contract, on percepts (pick: approach, grasp from the
@@ -49,10 +50,10 @@ import numpy as np
 from hardware.arm import ArmBase, ArmState
 from hardware.errors import SafetyError
 from hardware.spec import ArmSpec
-from sim2real.deploy.loop import DeployLoop, DeployStopError, LoopConfig, _sleep_until
 from sim2real.deploy.perception import Perception
 from sim2real.deploy.policy_io import PolicyIO
 from sim2real.deploy.runner import BACKENDS, DeployOptions
+from sim2real.deploy.session import ControlSession, DeployStopError, LoopConfig, Sensed
 from sim2real.deploy.worlds import World
 from sim2real.envs.contract import (
     DeployContract,
@@ -161,10 +162,6 @@ def training_reward(env_id: str, env_kwargs: Mapping[str, Any]) -> str | None:
     return None if reward is None else str(reward)
 
 
-def _no_policy(obs: Any) -> np.ndarray:
-    raise AssertionError("ArmEnv's loop never runs a policy: the learner acts through step()")
-
-
 class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
     """Any ``Arm`` backend (``sim``, ``mock``, ``serial``) as a Gymnasium env for one task."""
 
@@ -233,7 +230,8 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.arm: ArmBase = arm
         self.perception: Perception = perception
         self.world: World = world
-        self.loop = DeployLoop(arm, perception, world, _no_policy, io, config.loop_config())
+        # no trajectory log (finetune records its own transitions), no pipelined commands
+        self.session = ControlSession(arm, perception, world, io, config.loop_config())
         if human is not None and human.on_estop is None:
             # the key stops the arm at once, from the key thread, and nothing but a person's
             # enable() moves it again (not the next reset's homing)
@@ -255,14 +253,8 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         self._goal_delta = next(slice(f.start, f.stop) for f in io.builder.layout()
                                 if f.name == "goal_delta")  # fmt: skip
-        self._contract: DeployContract | None = None
-        self._targets = np.zeros(spec.n_actuators)
-        self._prev_action = np.zeros(io.decoder.n_actions)
-        self._step = 0
-        self._period_start = 0.0
+        self._contract: DeployContract | None = None  # the episode in flight
         self.episodes = 0
-        self.periods_s: list[float] = []
-        self.overruns = 0
         self.blind_periods = 0
         self.estops: list[str] = []  # e-stops (watchdog, faults) that a reset recovered from
         self.end_state: dict[str, Any] = {}  # where close() left the arm (``_end_state``)
@@ -313,23 +305,20 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             if recovered is not None:  # a watchdog or fault e-stop since the last episode
                 self.estops.append(recovered)
                 log.warning("the arm was e-stopped (%s): homing it for the next episode", recovered)
-            contract = self.io.new_contract(self.arm_spec, self.config.rate_hz)
+            session = self.session
+            contract = session.new_contract()
             self._contract = None
-            self.loop._home()  # up, then open: a held cube drops
-            self.world.clear()
+            session.home()  # up, then open: a held cube drops
+            session.clear()
             if self.confirm_reset:
                 assert self.human is not None
                 log.warning("place the objects, then press r (or Enter)")
-                if not self.human.wait_for_reset(self.loop._hold, self.period_s):
+                if not self.human.wait_for_reset(session.hold, self.period_s):
                     self._check_estop_key()
-            percept = self.loop._start(contract, self.episodes, self.np_random)
-            contract.begin(percept)
+            percept = session.place(contract, self.episodes, self.np_random)
+            session.begin(contract, percept, self.episodes)
             self._contract = contract
-            self._targets = self.arm.read_state().positions_rad.copy()
-            self._prev_action = np.zeros(self.io.decoder.n_actions)
-            self._step = 0
-            self._period_start = time.perf_counter()
-            obs, _ = self._observe()
+            obs, _ = self._observe(session.sense(view=False))
         except BaseException as exc:
             self._fail()
             self._raise_if_estop_key(exc)
@@ -348,20 +337,16 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         a = np.asarray(action, dtype=float).reshape(-1)
         if a.shape != self.action_space.shape:
             raise ConfigError(f"action shape {a.shape} is not {self.action_space.shape}")
+        session = self.session
         try:
             self._wait_if_paused()
-            self._targets = self.io.decoder.decode(a, self._targets)
-            sent = self.arm.command(self._targets)  # the safety filter, once, inside command()
-            self._prev_action = np.clip(a, -1.0, 1.0)
-            self._pace()
-            state = self.arm.read_state()
-            percept = self.perception.perceive(state, time.monotonic())
+            sent = session.act(a)  # the safety filter, once, inside Arm.command
+            session.pace()
             # the world now, truth or estimates: what this step's command did (as the env
             # judges a step after its physics)
-            view = self.loop._view(contract, percept, state.positions_rad, sent)
-            reason = contract.score(view, self._step) if view is not None else None
-            self._step += 1
-            obs, d_m = self._observe(state, percept)
+            sensed = session.sense()
+            reason, view = session.reason, sensed.view
+            obs, d_m = self._observe(sensed)
         except BaseException as exc:
             self._fail()
             self._raise_if_estop_key(exc)
@@ -370,7 +355,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         shaping = contract.shaping() if self.shaped else None
         if shaping is not None:
             reward += shaping
-        truncated = self._step >= self.episode_steps or reason is not None
+        truncated = session.step >= self.episode_steps or reason is not None
         out = contract.outcome()
         info: dict[str, Any] = {
             "is_success": bool(out.success),
@@ -380,10 +365,10 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "period_s": self.periods_s[-1],
             "sent_rad": sent.copy(),
             # what the deploy log records per period (finetune writes it)
-            "targets_rad": self._targets.copy(),
-            "joints_rad": state.positions_rad.copy(),
-            "ee_est_m": percept.tool_m,
-            "goal_est_m": percept.position(self.io.contract.objects[0]),
+            "targets_rad": session.targets_rad.copy(),
+            "joints_rad": sensed.state.positions_rad.copy(),
+            "ee_est_m": sensed.percept.tool_m,
+            "goal_est_m": sensed.percept.position(self.io.contract.objects[0]),
             "true_tool_m": view.tool_m if view is not None and view.truth else None,
         }
         if truncated:
@@ -399,49 +384,31 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._stop_idle_hold()
         try:
             if self.arm.is_connected and self.arm.is_enabled:
-                self.loop._park()
+                self.session.park()
             self.end_state = self._end_state()
         finally:
             self._contract = None
-            sight = getattr(self.loop, "_sight", None)  # the loop's placement checker, if any
-            if sight is not None:
-                sight.close()
+            self.session.close()  # the placement checker, if the session built one
             self._stack.close()
 
     # ---- periods ---------------------------------------------------------------------------
-    def _pace(self) -> None:
-        """Sleep to the end of this period; a late one is counted and logged, never an error,
-        and the next period starts now (catching up would burst commands)."""
-        deadline = self._period_start + self.period_s
-        if deadline - time.perf_counter() > 0:
-            _sleep_until(deadline)
-        now = time.perf_counter()
-        elapsed = now - self._period_start
-        self.periods_s.append(elapsed)
-        if elapsed > self.period_s * (1 + self.config.overrun_warn_fraction):
-            self.overruns += 1
-            log.warning(
-                "overrun: period %.1f ms (nominal %.1f ms)", elapsed * 1e3, self.period_s * 1e3
-            )
-        self._period_start = now
+    @property
+    def periods_s(self) -> list[float]:
+        """Every period's length so far, start to start (the session's clock)."""
+        return self.session.clock.periods_s
 
-    def _observe(
-        self, state: ArmState | None = None, percept: Percept | None = None
-    ) -> tuple[np.ndarray, float]:
+    @property
+    def overruns(self) -> int:
+        return self.session.clock.overruns
+
+    def _observe(self, sensed: Sensed) -> tuple[np.ndarray, float]:
         """The observation and the perceived goal error at the start of a period. While an
         estimate is missing the arm holds (one command a period, as the deploy loop does) and
         the period is not a step; missing for ``blind_timeout_s`` stops the run."""
-        assert self._contract is not None
         blind_since: float | None = None
         while True:
-            if state is None or percept is None:
-                state = self.arm.read_state()
-                percept = self.perception.perceive(state, time.monotonic())
             try:
-                obs = self.loop._observation(
-                    self._contract, percept, state.positions_rad, self._targets,
-                    self._prev_action, self._step,
-                )  # fmt: skip
+                obs = self.session.observe(sensed)
             except MissingEstimateError as exc:
                 now = time.monotonic()
                 blind_since = now if blind_since is None else blind_since
@@ -451,9 +418,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
                         f"missing for {self.config.blind_timeout_s:g} s"
                     ) from None
                 self.blind_periods += 1
-                self.loop._hold()
-                self._pace()
-                state = percept = None
+                self.session.hold()
+                self.session.pace()
+                sensed = self.session.sense(view=False)
                 continue
             flat = np.asarray(obs, dtype=np.float32).copy()
             return flat, float(np.linalg.norm(flat[self._goal_delta]))
@@ -462,7 +429,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
     def _end_episode(
         self, figures: dict[str, Any], reason: str | None, info: dict[str, Any]
     ) -> None:
-        self.loop._hold()
+        self.session.hold()
         self._start_idle_hold()  # the learner may take a while before the next reset
         info["figures"] = dict(figures)
         if reason is not None:
@@ -489,7 +456,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
     def _idle_hold(self) -> None:
         while not self._idle_stop.wait(self.period_s):
             try:
-                self.loop._hold()
+                self.session.hold()
             except Exception as exc:  # the watchdog or the port: the next reset sees it
                 log.warning("holding between episodes failed: %s", exc)
                 return
@@ -505,9 +472,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         if self.human is None or not self.human.paused:
             return
         log.warning("paused: the arm holds (press space or p to resume)")
-        if not self.human.wait_while_paused(self.loop._hold, self.period_s):
+        if not self.human.wait_while_paused(self.session.hold, self.period_s):
             self._check_estop_key()
-        self._period_start = time.perf_counter()  # a pause is not a late period
+        self.session.restart_period()  # a pause is not a late period
 
     def _raise_if_estop_key(self, exc: BaseException) -> None:
         """A command the arm refused because the e-stop key latched it (mid-episode, or while
@@ -528,7 +495,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             with contextlib.suppress(Exception):
                 self.arm.disable()  # the e-stop held the arm and put torque off: do not move
             return
-        self.loop._safe_stop()
+        self.session.safe_stop()
 
     def _require_open(self) -> None:
         if self._closed:
@@ -555,7 +522,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
     @property
     def safety_stats(self) -> dict[str, int]:
         """The safety filter's counters, and the mock world's arm-table contacts."""
-        return {**vars(self.arm.safety.stats), **self.loop.world_contacts()}
+        return {**vars(self.arm.safety.stats), **self.session.world_contacts()}
 
     def timing(self) -> dict[str, float]:
         """Loop timing so far: rate, p99 period jitter against nominal, late periods."""

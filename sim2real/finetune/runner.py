@@ -557,7 +557,7 @@ def _learner_errors() -> tuple[type[BaseException], ...]:
 
 def _why(exc: BaseException) -> str:
     if isinstance(exc, KeyboardInterrupt):
-        from sim2real.cli.signals import Terminated
+        from sim2real.errors import Terminated
 
         return "SIGTERM" if isinstance(exc, Terminated) else "Ctrl-C"
     return f"{type(exc).__name__}: " + (str(exc).splitlines() or [""])[0]

@@ -194,19 +194,19 @@ def test_a_pick_policy_with_no_cube_in_the_marker_layout_is_refused(
 def test_port_vanishing_mid_run_stops_safely_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from sim2real.deploy import loop as loop_mod
+    from sim2real.deploy import session as session_mod
 
     log = tmp_path / "cut.npz"
     calls = {"n": 0}
-    real = loop_mod.DeployLoop._log_period
+    real = session_mod.ControlSession.log_period
 
-    def unplug_after_20(self: loop_mod.DeployLoop, *a: object, **k: object) -> None:
+    def unplug_after_20(self: session_mod.ControlSession, *a: object, **k: object) -> None:
         real(self, *a, **k)  # type: ignore[arg-type]
         calls["n"] += 1
         if calls["n"] == 20:
             self.arm.emulator.unplug()  # type: ignore[attr-defined]
 
-    monkeypatch.setattr(loop_mod.DeployLoop, "_log_period", unplug_after_20)
+    monkeypatch.setattr(session_mod.ControlSession, "log_period", unplug_after_20)
     with pytest.raises(HardwareError):
         run_policy(
             ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec,

@@ -105,14 +105,14 @@ def test_the_arm_process_dies_when_its_host_is_killed() -> None:
 def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from sim2real.deploy import loop as loop_mod
+    from sim2real.deploy import session as session_mod
 
     log = tmp_path / "crash.npz"
     calls = {"n": 0}
-    real = loop_mod.DeployLoop._log_period
+    real = session_mod.ControlSession.log_period
     killed: list[int] = []
 
-    def crash_after_10(self: loop_mod.DeployLoop, *a: object, **k: object) -> None:
+    def crash_after_10(self: session_mod.ControlSession, *a: object, **k: object) -> None:
         real(self, *a, **k)  # type: ignore[arg-type]
         calls["n"] += 1
         if calls["n"] == 10:
@@ -120,7 +120,7 @@ def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
             killed.append(pid)
             os.kill(pid, signal.SIGKILL)
 
-    monkeypatch.setattr(loop_mod.DeployLoop, "_log_period", crash_after_10)
+    monkeypatch.setattr(session_mod.ControlSession, "log_period", crash_after_10)
     try:
         with pytest.raises(HardwareError) as info:
             run_policy(

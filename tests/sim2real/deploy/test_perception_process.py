@@ -107,8 +107,8 @@ def test_the_process_estimates_equal_the_thread_version_on_the_same_frames(
                 if est.yaw_rad is not None:
                     assert other.yaw_rad == pytest.approx(est.yaw_rad, abs=1e-12)
                 seen[name] += 1
-            assert threaded._ee_seen == process._ee_seen
-            seen["ee"] += int(process._ee_seen)
+            assert threaded.ee_seen == process.ee_seen
+            seen["ee"] += int(process.ee_seen)
         # the clip exercised every path: the plate correction and both objects' tracks
         assert seen["ee"] >= 6 and seen["cube"] >= 6 and seen["target"] >= 6, seen
         assert threaded.detections["ee"] == process.detections["ee"] > 0
@@ -183,15 +183,15 @@ def test_the_perception_process_dies_when_its_host_is_killed() -> None:
 def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from sim2real.deploy import loop as loop_mod
+    from sim2real.deploy import session as session_mod
 
     log = tmp_path / "crash.npz"
     calls = {"n": 0}
-    real = loop_mod.DeployLoop._log_period
+    real = session_mod.ControlSession.log_period
     killed: list[int] = []
     mocks: list[object] = []
 
-    def crash_after_10(self: loop_mod.DeployLoop, *a: object, **k: object) -> None:
+    def crash_after_10(self: session_mod.ControlSession, *a: object, **k: object) -> None:
         real(self, *a, **k)  # type: ignore[arg-type]
         calls["n"] += 1
         if calls["n"] == 10:
@@ -200,7 +200,7 @@ def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_t
             killed.append(pid)
             os.kill(pid, signal.SIGKILL)
 
-    monkeypatch.setattr(loop_mod.DeployLoop, "_log_period", crash_after_10)
+    monkeypatch.setattr(session_mod.ControlSession, "log_period", crash_after_10)
     try:
         with pytest.raises(HardwareError) as info:
             run_policy(

@@ -373,7 +373,7 @@ def test_the_estop_key_while_homing_for_an_episode_is_a_clean_stop(
     move, so the timing is fixed): the refused homing command is the key's clean stop."""
     master, keys = pty_keys
     env = ArmEnv(reach_io, spec, SIM, human=keys)
-    home = env.loop._home
+    home = env.session.home
 
     def home_with_the_key_pressed() -> None:
         os.write(master, b"e")
@@ -382,7 +382,7 @@ def test_the_estop_key_while_homing_for_an_episode_is_a_clean_stop(
 
     try:
         env.reset(seed=1)
-        env.loop._home = home_with_the_key_pressed  # type: ignore[method-assign]
+        env.session.home = home_with_the_key_pressed  # type: ignore[method-assign]
         with pytest.raises(DeployStopError, match="e-stop key"):
             env.reset(seed=2)
         assert not env.arm.is_enabled
