@@ -22,8 +22,7 @@ from sim2real.errors import ConfigError
 from sim2real.export.policy import Policy, PolicyError, load_policy
 from sim2real.randomization import DRConfig, load_preset
 
-# Evaluation seeds start here; training seeds stay below. The trainer states the same value
-# (``train.config.EVAL_SEED_BASE``, which checks its seeds against it); a test holds them equal.
+# Evaluation seeds start here; training seeds stay below (``train.config`` checks them).
 EVAL_SEED_BASE = 1_000_000_000
 MAX_EPISODES = 1_000_000
 

@@ -19,10 +19,10 @@ from typing import Any
 import yaml
 
 from sim2real.errors import ConfigError, UnknownNameError
+from sim2real.held_out import EVAL_SEED_BASE  # evaluation seeds; training seeds stay below
 
 PRESET_DIR = Path(__file__).with_name("presets")
 VEC_ENVS: tuple[str, ...] = ("dummy", "subproc")
-EVAL_SEED_BASE = 1_000_000_000  # evaluation seeds start here; training seeds stay below
 # Keys of the ``augment`` preset mapping (pixel policies only, see augment.py).
 AUGMENT_KEYS: tuple[str, ...] = ("random_shift_px",)
 # SB3 constructor arguments the trainer sets itself.

@@ -330,7 +330,12 @@ def dagger(model: Any, algo: str, cfg: Dagger, seed: int) -> dict[str, Any]:
 class ImitationAnchor(BaseCallback):
     """DAgger beside the algorithm's own updates: each env step the teacher labels the states
     the learner now visits; every ``anchor_every`` steps ``anchor_updates`` minibatches of the
-    imitation loss pull the student's action back towards the teacher's."""
+    imitation loss pull the student's action back towards the teacher's.
+
+    The minibatches run when a rollout starts, after the algorithm's update and before new
+    data: run between a rollout and PPO's update on it, they moved the policy away from the
+    one that collected it (PPO's approximate KL 0.4-1.1, 90 % of its ratios clipped), and the
+    student fell from 95.5 % to 66.5 % in 120k steps."""
 
     def __init__(self, stage: DaggerStage) -> None:
         super().__init__()
@@ -343,11 +348,13 @@ class ImitationAnchor(BaseCallback):
     def _on_step(self) -> bool:
         self._label_current()
         self._since += self.training_env.num_envs
+        return True
+
+    def _on_rollout_start(self) -> None:
         if self._since >= self.stage.cfg.anchor_every:
             self._since = 0
             loss = self.stage.fit(self.stage.cfg.anchor_updates)
             self.logger.record("dagger/anchor_mse", loss)
-        return True
 
     def _label_current(self) -> None:
         vn = self.model.get_vec_normalize_env()
