@@ -17,8 +17,11 @@ Prints one JSON line per DR preset: ``pick_teacher_success`` (value = success ra
 Wilson interval, the failure classes, the median step of the first success, and env steps per
 CPU-second.
 
+With ``--backends sim,mock`` the same teacher also runs through the deploy loop on those
+backends (``pick_teacher_deploy_success``, on the placements of the env's held-out episodes).
+
 Run: ``nice -n 15 .venv/bin/python bench/pick_servo.py [--episodes 200] [--dr default,none]
-[--record training]``.
+[--backends sim,mock] [--record training]``.
 """
 
 from __future__ import annotations
@@ -111,13 +114,64 @@ def run(dr: str, episodes: int) -> None:
     )
 
 
+def deploy(backend: str, episodes: int, policy: str) -> None:
+    """The teacher through the deploy loop on ``backend`` (sim: lockstep MuJoCo, ground-truth
+    perception; mock: the emulated firmware on a pty, MuJoCo physics, rendered cameras),
+    reading the world's truth (``deploy.privileged.TruthTeacher``), on the held-out placements
+    ``evaluate`` uses under DR ``none``. ``policy`` (a shipped pick policy) lends its
+    observation layout and control rate; its own actor is not used."""
+    from hardware.spec import load_spec
+    from sim2real.deploy.policy_io import policy_io
+    from sim2real.deploy.privileged import TruthTeacher
+    from sim2real.deploy.runner import DeployOptions, run_policy
+    from sim2real.deploy.session import LoopConfig
+    from sim2real.envs.pick import lift_goal
+    from sim2real.held_out import EvalTarget, held_out_placements
+
+    spec = load_spec()
+    target = EvalTarget.load(policy)
+    io = policy_io(spec, target.policy.meta)
+    teacher = get_teacher("pick_servo", io.decoder)
+    placements = tuple(held_out_placements(target, episodes))
+    truth = TruthTeacher(teacher.action, io, extra=lambda view: lift_goal(view.objects["cube"]))
+    t0 = time.perf_counter()
+    res = run_policy(truth, io, spec, DeployOptions(backend=backend),
+                     LoopConfig(episodes=episodes, placements=placements))  # fmt: skip
+    s = res.summary()
+    wins = res.successes
+    lo, hi = wilson_interval(wins, episodes)
+    emit(
+        "pick_teacher_deploy_success",
+        round(wins / episodes, 4),
+        "fraction",
+        label=f"scripted pick on the truth through the deploy loop, `{backend}` backend",
+        table="Pick: the privileged teacher (the ceiling)",
+        variant=backend,
+        teacher="pick_servo",
+        episodes=episodes,
+        ci95=[round(lo, 4), round(hi, 4)],
+        stops=s["episode_stops"],
+        loop_hz=round(s["loop_hz"], 2),
+        p99_jitter_ms=round(s["period_jitter_ms"]["p99"], 2),
+        wall_s=round(time.perf_counter() - t0, 1),
+    )
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--episodes", type=int, default=200)
     p.add_argument("--dr", default="default,none")
+    p.add_argument(
+        "--backends", default="", help="comma list of deploy backends (sim, mock) to run it on"
+    )
+    p.add_argument("--policy", default="pick-ppo", help="a shipped pick policy: its layout")
     a = p.parse_args()
     for dr in a.dr.split(","):
-        run(dr, a.episodes)
+        if dr:
+            run(dr, a.episodes)
+    for backend in a.backends.split(","):
+        if backend:
+            deploy(backend, a.episodes, a.policy)
 
 
 if __name__ == "__main__":

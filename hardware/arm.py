@@ -291,10 +291,13 @@ class ArmBase(ABC):
         tolerance_rad: float | None = None,
         timeout_s: float = 10.0,
         rate_hz: float = 50.0,
+        judged: np.ndarray | None = None,
     ) -> ArmState:
         """Walk to ``target_rad`` through the per-step clamp at ``rate_hz``; return the state once
         every actuator is within ``tolerance_rad`` (default: ``arrival_tolerance_rad(spec)``,
-        from the servo figures, which sysid's fitted spec carries).
+        from the servo figures, which sysid's fitted spec carries). ``judged`` (a boolean mask
+        over the actuators, default all) leaves some out of the arrival check: a gripper closed
+        on an object is commanded shut and stops at the object, by design.
 
         An arm that stops short (droop, a wider dead band than the spec says) but within
         ``off_pose_limit_rad(spec)`` is warned about and returned: it works, a little off. One
@@ -310,6 +313,11 @@ class ArmBase(ABC):
             )
         if not self._enabled or self._estop_reason is not None:
             self.enable()
+        mask = np.ones(self.spec.n_actuators, bool) if judged is None else np.asarray(judged, bool)
+        if mask.shape != (self.spec.n_actuators,) or not mask.any():
+            raise SafetyError(
+                f"judged must mark some of the {self.spec.n_actuators} actuators, got {judged!r}"
+            )
         tol = arrival_tolerance_rad(self.spec) if tolerance_rad is None else float(tolerance_rad)
         off_pose = max(off_pose_limit_rad(self.spec), tol)
         window_s = settle_window_s(self.spec)
@@ -325,7 +333,7 @@ class ArmBase(ABC):
             sent = self.command(target)
             state = self.read_state()
             now = time.monotonic()
-            err = np.abs(state.positions_rad - target)
+            err = np.where(mask, np.abs(state.positions_rad - target), 0.0)
             worst = int(np.argmax(err))
             name = self.spec.actuator_names[worst]
             # the targets sit on the goal once the step clamp no longer moves them

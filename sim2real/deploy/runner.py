@@ -250,6 +250,9 @@ def run_policy(
     """Any callable policy on a backend (a scripted one in tests, a learner's actor)."""
     with contextlib.ExitStack() as stack:
         arm, perception, world = BACKENDS[opts.backend](spec, io, opts, stack)
+        bind = getattr(policy, "bind", None)
+        if callable(bind):  # a privileged teacher (privileged.TruthTeacher) reads the truth
+            world = bind(arm, world)
         cameras = isinstance(perception, StereoPerception)
         writer = None
         if video_path is not None and cameras:

@@ -150,6 +150,9 @@ class Sensed:
     wake_late_s: float  # its wake-up after the deadline (NaN: it did not sleep)
 
 
+PUT_DOWN_CLEAR_M = 0.04  # the open gripper rises this far from a set-down object
+
+
 class ControlSession:
     """One arm with its perception and world, running one policy's ``PolicyIO``."""
 
@@ -211,6 +214,7 @@ class ControlSession:
             return
         n = self.decoder.spec.n_joints
         try:
+            self.put_down()
             if self.arm.is_enabled and self.decoder.spec.n_actuators > n:
                 target = self.decoder.spec.actuator_home_rad.copy()
                 target[n:] = self.arm.read_state().positions_rad[n:]
@@ -223,6 +227,35 @@ class ControlSession:
             log.warning("home failed (%s): clearing the table and homing again", exc)
             self.world.clear()
             self.arm.home()
+
+    def put_down(self) -> None:
+        """What the arm holds goes back on the table before it homes or parks (the contract
+        says where; pick: a held cube, set down where the tool is), then the gripper opens
+        there. Nothing held, or an arm without its torque on: nothing to do."""
+        last = self.arm.last_sent_rad
+        if self.contract is None or last is None or not self.arm.is_enabled:
+            return
+        target = self.contract.put_down(self.arm.read_state().positions_rad, last)
+        if target is None:
+            return
+        log.info("setting the held object down before the arm moves on")
+        joints = np.arange(self.decoder.spec.n_actuators) < self.decoder.spec.n_joints
+        try:  # the gripper stays commanded shut and stops at the object: judge the joints
+            self.arm.move_to(target, judged=joints)
+        except HardwareError as exc:  # the table stopped it short: let go from there
+            log.warning("setting the held object down stopped short (%s); opening there", exc)
+            target = self.arm.read_state().positions_rad.copy()
+            target[self.decoder.spec.n_joints :] = last[self.decoder.spec.n_joints :]
+        spec, n = self.decoder.spec, self.decoder.spec.n_joints
+        opened = target.copy()
+        opened[n:] = spec.actuator_home_rad[n:]
+        self.arm.move_to(opened)
+        # up and clear of it, the gripper open, before a park closes the fingers again
+        above = spec.forward_kinematics(opened[:n]) + (0.0, 0.0, PUT_DOWN_CLEAR_M)
+        q = spec.inverse_kinematics(above)
+        if q is not None:
+            opened[:n] = q
+            self.arm.move_to(opened)
 
     def clear(self) -> None:
         """Sim and mock: the last episode's objects off the table."""
@@ -455,6 +488,7 @@ class ControlSession:
         if self.config.dry_run:
             return
         try:
+            self.put_down()
             self.arm.park()
             self.arm.disable()
         except HardwareError as exc:

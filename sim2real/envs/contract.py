@@ -149,6 +149,12 @@ class DeployContract(ABC):
         (its env's shaping, if any, reads MuJoCo state only)."""
         return None
 
+    def put_down(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> np.ndarray | None:
+        """Actuator targets that set down what the arm holds before it homes or parks (the
+        gripper still closed; the session opens it there), or None when it holds nothing.
+        Actuator vectors: joints, then gripper."""
+        return None
+
     # ---- success ---------------------------------------------------------------------------
     @abstractmethod
     def score(self, view: View, step: int) -> str | None:

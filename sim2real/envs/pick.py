@@ -106,6 +106,7 @@ SUCCESS_M = 0.02
 BLIND_JUDGE_S = 0.5  # a real arm: a cube unseen this long is judged by the gripper, not the camera
 DROPPED_FROM_M = 0.02  # a cube that was this high and is back on the table was dropped
 HOLD_MARGIN_RAD = 0.1  # gripper reading this far open of "closed" while commanded closed: holding
+PUT_DOWN_ABOVE_M = 0.003  # a held cube is set down with the tool this far above its grasp height
 
 
 class PickContract(DeployContract):
@@ -170,6 +171,25 @@ class PickContract(DeployContract):
             return None
         tool, cube, is_holding = self._last_seen
         return percept_shaping(tool, cube, self.goal[2] - LIFT_M, is_holding)
+
+    def put_down(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> np.ndarray | None:
+        """A held cube goes back on the table where the tool is: the tool down to the height it
+        grasped at (the cube's rest, ``PUT_DOWN_ABOVE_M`` higher), the gripper still closed.
+        Homing with the cube in the fingers swung it over the table, and a park with it failed
+        (the fingers could not close on the rest pose's tolerance)."""
+        if not holding(self.spec, commanded_rad, reading_rad):
+            return None
+        spec, n = self.spec, self.spec.n_joints
+        tool = spec.forward_kinematics(np.asarray(reading_rad[:n], dtype=float))
+        floor = spec.workspace.table_z_m + spec.workspace.margin_m
+        rest_z = self.goal[2] - LIFT_M if self._rest_z_m == 0.0 else self._rest_z_m
+        down = np.array([tool[0], tool[1], max(rest_z + PUT_DOWN_ABOVE_M, floor + 0.001)])
+        q = spec.inverse_kinematics(down)
+        if q is None:
+            return None
+        target = np.array(commanded_rad, dtype=float, copy=True)
+        target[:n] = q
+        return target
 
     def _holding(self, view: View) -> bool:
         if view.commanded_rad is None:
