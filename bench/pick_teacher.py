@@ -1,5 +1,5 @@
 """How well a shipped state policy teaches on the pixel pick (``distill``'s ``pick_ppo`` or
-``pick_td3``, ``state_teacher.StatePolicyTeacher``): the ceiling a distilled pixel student of
+``pick_ddpg``, ``state_teacher.StatePolicyTeacher``): the ceiling a distilled pixel student of
 ``Sim2Real/Arm3PickPixels-v0`` can approach.
 
 The teacher drives the real pixel env (frames rendered at the ``distill_pick_pixels`` preset's
@@ -14,7 +14,7 @@ with its Wilson interval, the state env's rate, the episodes with the same outco
 env steps per CPU-second.
 
 Run: ``nice -n 15 .venv/bin/python bench/pick_teacher.py [--episodes 100] [--dr default]
-[--teacher pick_ppo,pick_td3]``.
+[--teacher pick_ppo,pick_ddpg]``.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from sim2real.train.state_teacher import shipped_policy
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from support.load import emit
 
-POLICY = {"pick_ppo": "pick-ppo", "pick_td3": "pick-td3"}  # teacher -> its shipped policy
+POLICY = {"pick_ppo": "pick-ppo", "pick_ddpg": "pick-ddpg"}  # teacher -> its shipped policy
 
 
 def _episodes(env: Any, act: Any, episodes: int, key: str | None) -> tuple[list[bool], int]:

@@ -11,7 +11,9 @@ every one, and its card records the largest logit (DQN: Q-value) difference too.
 optimiser) and ``<name>.train.json`` (the run's config and its observation-normalisation
 statistics as numbers), named in the card's ``checkpoint``: ``sim2real adapt`` fine-tunes from
 them. ``--add-checkpoint`` adds them to an already shipped policy without measuring again, after
-checking that the run's policy is the shipped ONNX (parity).
+checking that the run's policy is the shipped ONNX (parity). ``--remeasure WHY`` measures a
+shipped policy again from its file (RUN is ``-``) and updates its card, saying why: a change
+that makes a published figure stale re-measures it.
 
 Prints JSON lines; the card keeps the figures with the date and the machine. With
 ``--record training`` the held-out figures also become records, which the benchmark pages show
@@ -67,11 +69,36 @@ def ship_checkpoint(run: str, name: str) -> dict[str, object]:
     return {"model": zip_path.name, "stats": stats.name, "steps": steps}
 
 
+def measure(policy_file: Path, name: str, episodes: int) -> dict[str, object]:
+    """The card's figures: held-out success from the exported file under DR default and none."""
+    from sim2real.evaluate import EvalTarget, evaluate
+
+    target = EvalTarget.load(policy_file)
+    figures: dict[str, object] = {}
+    for dr in ("default", "none"):
+        ev = evaluate(target, episodes=episodes, dr=dr)
+        figures[f"env_success_dr_{dr}"] = round(float(ev["success_rate"]), 4)
+        figures[f"env_success_dr_{dr}_ci95"] = [
+            round(float(v), 4) for v in ev["success_rate_wilson95"]
+        ]
+        emit(  # the card's own numbers: bench/pages.py checks the records against the card
+            f"env_success_dr_{dr}",
+            figures[f"env_success_dr_{dr}"],
+            "fraction",
+            ci95=figures[f"env_success_dr_{dr}_ci95"],
+            policy=name,
+            episodes=episodes,
+            table="Shipped policies: held-out success in their env",
+        )
+    figures["episodes"] = episodes
+    return figures
+
+
 def main() -> None:
     import torch
 
     from hardware.atomic import atomic_write_bytes
-    from sim2real.evaluate import EvalTarget, evaluate
+    from sim2real.evaluate import EvalTarget
     from sim2real.evaluate.parity import check_parity, parity_check
     from sim2real.export.exporter import export_policy
     from sim2real.policies import SHIPPED_DIR
@@ -87,8 +114,22 @@ def main() -> None:
     p.add_argument(
         "--add-checkpoint", action="store_true", help="only add the checkpoint to a shipped card"
     )
+    p.add_argument(
+        "--remeasure",
+        metavar="WHY",
+        help="only measure a shipped policy again (its file, not a run: pass '-' as RUN) and "
+        "update its card's figures, saying why (e.g. the env's physics changed)",
+    )
     a = p.parse_args()
     out = SHIPPED_DIR / f"{a.name}.onnx"
+    if a.remeasure:
+        card_path = SHIPPED_DIR / f"{a.name}.json"
+        card = json.loads(card_path.read_text())
+        card["figures"] = measure(SHIPPED_DIR / card["file"], a.name, a.episodes)
+        card["trained"]["measured"] = dt.date.today().isoformat()
+        card["trained"]["remeasured_because"] = a.remeasure
+        atomic_write_bytes(card_path, (json.dumps(card, indent=2) + "\n").encode())
+        return
     if a.add_checkpoint:
         card_path = SHIPPED_DIR / f"{a.name}.json"
         card = json.loads(card_path.read_text())
@@ -113,23 +154,7 @@ def main() -> None:
             action_disagreements=parity.action_disagreements,
         )
     target = EvalTarget.load(out)
-    figures: dict[str, object] = {}
-    for dr in ("default", "none"):
-        ev = evaluate(target, episodes=a.episodes, dr=dr)
-        figures[f"env_success_dr_{dr}"] = round(float(ev["success_rate"]), 4)
-        figures[f"env_success_dr_{dr}_ci95"] = [
-            round(float(v), 4) for v in ev["success_rate_wilson95"]
-        ]
-        emit(  # the card's own numbers: bench/pages.py checks the records against the card
-            f"env_success_dr_{dr}",
-            figures[f"env_success_dr_{dr}"],
-            "fraction",
-            ci95=figures[f"env_success_dr_{dr}_ci95"],
-            policy=a.name,
-            episodes=a.episodes,
-            table="Shipped policies: held-out success in their env",
-        )
-    figures["episodes"] = a.episodes
+    figures = measure(out, a.name, a.episodes)
     import gymnasium as gym
 
     config = json.loads((Path(a.run) / "config.json").read_text())

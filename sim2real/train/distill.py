@@ -3,7 +3,7 @@
 The teacher is privileged: a pure function of the simulator's state (``TEACHERS``; the Kuka
 scripted servo reaches ~70% held-out grasp success, the arm's reach servo 100 % within 2 cm, and
 a shipped state policy, ``pick_ppo``, acts on the state observation at the privileged state's
-tail, ``state_teacher``), built for the env's own action decoding (its arm spec and step size). The student is the pixel
+tail, ``state_teacher``; the scripted ``pick_servo`` picks 100 %), built for the env's own action decoding (its arm spec and step size). The student is the pixel
 actor of an ``AsymmetricActorCriticPolicy`` (its critic is unused), so a distilled run saves,
 loads, evaluates and compares exactly like a PPO run. Each iteration:
 
@@ -141,9 +141,9 @@ TEACHERS: dict[str, Callable[[ActionDecoder | None], Teacher]] = {
     "reach_ik": _reach_ik,
     "reach_servo": _reach_servo,
     "pick_servo": _pick_servo,
-    # shipped state policies (``sim2real policies``): 36.5 % and 33.5 % held-out on pick (DR default)
+    # shipped state pick policies (``sim2real policies``), on the state observation
     "pick_ppo": functools.partial(_state_policy, "pick-ppo"),
-    "pick_td3": functools.partial(_state_policy, "pick-td3"),
+    "pick_ddpg": functools.partial(_state_policy, "pick-ddpg"),
 }
 
 

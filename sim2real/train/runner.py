@@ -562,4 +562,16 @@ def resume(
     venv.seed(session.seeds[0])
     seeds = tuple(sorted(set(meta.training_seeds) | set(session.seeds)))
     rd.write_meta(replace(meta, training_seeds=seeds, steps=cfg.steps, train=cfg.to_dict()))
-    return session.learn(model)
+    return session.learn(model, _resumed_anchor(cfg, model))
+
+
+def _resumed_anchor(cfg: TrainConfig, model: BaseAlgorithm) -> tuple[BaseCallback, ...]:
+    """A dagger run's anchor goes on in a resumed segment (an ``adapt`` fine-tune is one), its
+    dataset filled anew by the teacher from the states the learner visits; without it the
+    algorithm alone undoes the imitation (``dagger``'s measurements)."""
+    if cfg.dagger is None:
+        return ()
+    from sim2real.train.dagger import Dagger, DaggerStage
+
+    anchor = DaggerStage(model, cfg.algo, Dagger.from_mapping(cfg.dagger), cfg.seed).anchor()
+    return () if anchor is None else (anchor,)

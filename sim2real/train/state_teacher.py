@@ -1,5 +1,5 @@
 """A shipped *state* policy as a privileged DAgger teacher for a pixel student (``distill``'s
-``pick_ppo`` and ``pick_td3``).
+``pick_ppo`` and ``pick_ddpg``).
 
 A pixel env's ``privileged_state`` ends with the observation the same env in ``obs_mode="state"``
 gives, through the same sensor models (``Arm3Env.privileged_state``); the teacher runs the shipped

@@ -51,7 +51,7 @@ def test_the_privileged_tail_is_the_state_envs_observation(dr: str) -> None:
 
 
 def test_the_teacher_is_the_shipped_policy_on_that_observation() -> None:
-    assert {"pick_ppo", "pick_td3"} <= set(TEACHERS)
+    assert {"pick_ppo", "pick_ddpg", "pick_servo"} <= set(TEACHERS)
     env = envs.make("pick-pixels", dr="default", **PICK)
     u: Any = env.unwrapped
     policy = load_policy("pick-ppo")

@@ -77,7 +77,7 @@ def test_the_reach_teacher_is_built_for_the_envs_own_step_size() -> None:
         env.close()
     with pytest.raises(
         UnknownNameError,
-        match="unknown teacher 'oracle'; valid: kuka_scripted, pick_ppo, pick_servo, pick_td3, reach_ik",
+        match="unknown teacher 'oracle'; valid: kuka_scripted, pick_ddpg, pick_ppo, pick_servo, reach_ik",
     ):
         get_teacher("oracle")
 

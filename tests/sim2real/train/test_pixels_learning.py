@@ -402,7 +402,7 @@ def test_distill_auxiliary_head_regresses_the_teachers_inputs_and_stays_out_of_t
 
 
 def test_distill_rejects_unknown_teachers_and_envs_without_privileged_state(tmp_path: Path) -> None:
-    valid = "kuka_scripted, pick_ppo, pick_servo, pick_td3, reach_ik, reach_servo"
+    valid = "kuka_scripted, pick_ddpg, pick_ppo, pick_servo, reach_ik, reach_servo"
     with pytest.raises(UnknownNameError, match=f"unknown teacher 'oracle'; valid: {valid}"):
         resolve_config("kuka-fast", "distill", tmp_path / "a", overrides=["teacher=oracle"])
     cfg = resolve_config(
