@@ -106,8 +106,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"recording  {out}")
         for c in summary["runs"]:
+            events = ", ".join(f"{k} {v}" for k, v in c["events"].items() if v) or "none"
             print(f"  {c['label']:12s} {c['kind']:10s} periods {c['periods']:5d}  episodes "
-                  f"{c['episodes']:3d}  frames {c['frames']:5d}  events {c['events']}")  # fmt: skip
+                  f"{c['episodes']:3d}  frames {c['frames']:5d}  markers {c['markers']:5d}  "
+                  f"events: {events}")  # fmt: skip
     if args.save is None:
         open_viewer(out)
     return 0

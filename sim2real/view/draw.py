@@ -11,11 +11,12 @@ Everything of a run lives under ``/<label>``, so two runs sit side by side in on
         cameras/<left|right>                pinhole + image, detected markers, reprojected estimates
     /<label>/joints/<joint>/command|sent|reading      rad
     /<label>/gripper/holding   /<label>/objects/<name>/blind_s   /<label>/distance/<estimate|truth>_m
-    /<label>/timing/period_s|wake_late_s|<section>_s  /<label>/outcome/reward|success|episode_success
+    /<label>/timing/period_s|wake_late_s|<section>_s  /<label>/outcome/reward|success|episode_success|episode
     /<label>/events/overrun   /<label>/events/safety/<rule>   /<label>/events/log
 
 Timelines: ``period`` (the run's period index from its start: two runs line up period for
-period), ``time`` (seconds from the run's first period) and ``episode``.
+period) and ``time`` (seconds from the run's first period); the episode number is a series
+(``outcome/episode``), not a timeline, so that the viewer opens on ``period``.
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ def series(
         "wake_late_s": "timing/wake_late_s",
         "reward": "outcome/reward",
         "success": "outcome/success",
+        "episode": "outcome/episode",
         **{f"{s}_s": f"timing/{s}_s" for s in SECTIONS},
         **{f"{o}_blind_s": f"objects/{o}/blind_s" for o in objects},
     }
@@ -147,11 +149,9 @@ class RunDrawer:
                                          camera_xyz=rr.ViewCoordinates.RDF), static=True)  # fmt: skip
 
     # ---- one period ----------------------------------------------------------------------
-    def set_time(self, period: int, time_s: float, episode: int | None = None) -> None:
+    def set_time(self, period: int, time_s: float) -> None:
         rr.set_time_sequence("period", period, recording=self.rec)
         rr.set_time_seconds("time", time_s, recording=self.rec)
-        if episode is not None:
-            rr.set_time_sequence("episode", episode, recording=self.rec)
 
     def scene(self, row: Mapping[str, Any]) -> None:
         """The 3D view of one period: the arm, its ghosts, estimates and truth."""

@@ -233,8 +233,7 @@ class RerunSink:
         row = item.row
         t = float(row.get("t_s", item.index))
         self._t0 = t if self._t0 is None else self._t0
-        episode = row.get("episode")
-        self.drawer.set_time(item.index, t - self._t0, None if episode is None else int(episode))
+        self.drawer.set_time(item.index, t - self._t0)
         self.drawer.scene(row)
         columns = {k: np.asarray([v], dtype=float) for k, v in row.items() if _numeric(v)}
         values = series(columns, self.spec.actuator_names, self.objects)

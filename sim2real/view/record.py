@@ -99,7 +99,7 @@ def log_run(
         ok = np.array([float(bool(ep.success)) for _, ep in known])
         drawer.send_series("outcome/episode_success", ok, idx, time_s[idx])
     for k, ep in ends:
-        drawer.set_time(k, float(time_s[k]), ep.index)
+        drawer.set_time(k, float(time_s[k]))
         verdict = "unknown" if ep.success is None else ("success" if ep.success else "failure")
         note = f" ({ep.note})" if ep.note else ""
         level = "INFO" if ep.success is not False else "WARN"
@@ -109,7 +109,7 @@ def log_run(
         pairs = iter(run.frames.episode_pairs(order)) if run.frames is not None else None
         for k in range(ep.first_period, ep.first_period + ep.periods):
             row = {key: run.columns[key][k] for key in keys}
-            drawer.set_time(k, float(time_s[k]), ep.index)
+            drawer.set_time(k, float(time_s[k]))
             drawer.scene(row)
             pair = next(pairs, None) if pairs is not None else None
             if pair is not None:
@@ -150,7 +150,12 @@ def blueprint(labels: Sequence[str], cameras: bool) -> rrb.Blueprint:
             name="together",
         )  # fmt: skip
         tabs.insert(0, together)
-    return rrb.Blueprint(rrb.Tabs(*tabs) if len(tabs) > 1 else tabs[0], collapse_panels=False)
+    return rrb.Blueprint(
+        rrb.Tabs(*tabs) if len(tabs) > 1 else tabs[0],
+        rrb.BlueprintPanel(expanded=False),  # room for the views; the panels open with a click
+        rrb.SelectionPanel(expanded=False),
+        rrb.TimePanel(expanded=True),
+    )
 
 
 def write_recording(
