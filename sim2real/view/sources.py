@@ -25,7 +25,7 @@ import itertools
 import json
 import re
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -184,6 +184,9 @@ def _load_log(path: Path, opts: LoadOptions) -> list[ViewRun]:
     cols = _log_columns(_read_npz(path), path)
     episodes = _episodes(cols, {})
     frames = None if opts.frames is None else _paired_frames(opts.frames, episodes)
+    if frames is not None:  # the dataset keeps each episode's judged success; the log does not
+        verdicts = [e.success for e in frames.dataset.episodes]
+        episodes = tuple(replace(e, success=v) for e, v in zip(episodes, verdicts, strict=True))
     return [
         ViewRun(
             label=_label(path, opts.label),
@@ -272,8 +275,6 @@ def _load_adapt(path: Path, opts: LoadOptions) -> list[ViewRun]:
 
 
 def _with(run: ViewRun, **changes: Any) -> ViewRun:
-    from dataclasses import replace
-
     return replace(run, **changes)
 
 

@@ -55,6 +55,7 @@ def test_a_mock_deploy_log_with_its_frames_reads_back_entity_for_entity(
     for section in ("read", "perceive", "infer", "command"):
         assert counts[f"{root}/timing/{section}_s:Scalar"] == n
     assert counts[f"{root}/events/log:Text"] >= 1  # the episode's verdict at its last period
+    assert counts[f"{root}/outcome/episode_success:Scalar"] == 1  # judged, kept by the dataset
     overruns = run["events"]["overrun"]
     assert counts.get(f"{root}/events/overrun:Scalar", 0) == overruns
     assert set(run["events"]) >= {"overrun", "safety/step_clamped", "safety/workspace_clamped"}
