@@ -32,7 +32,6 @@ from sim2real.view.signals import signals
 from sim2real.view.sources import ViewRun
 
 APPLICATION_ID = "sim2real"
-RERUN_VERSION = rr.__version__
 
 
 @dataclass

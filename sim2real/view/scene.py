@@ -20,7 +20,6 @@ import numpy as np
 
 from hardware.spec import ArmSpec
 from sim2real import scene_names as names
-from sim2real.errors import ConfigError
 
 # Which marker an id is, on the mock rig (``scene_names``): labels drawn beside each detection.
 MARKER_NAMES: dict[int, str] = {
@@ -143,8 +142,3 @@ class MarkerFinder:
     def find(self, rgb: np.ndarray) -> list[MarkerSighting]:
         found = self._detector.detect(np.ascontiguousarray(rgb[:, :, ::-1]))
         return [MarkerSighting(m.id, m.corners_px) for m in found]
-
-
-def check_cameras(cameras: tuple[ViewCamera, ...] | None) -> None:
-    if cameras is not None and len(cameras) != 2:
-        raise ConfigError(f"need two cameras (left, right), got {len(cameras)}")

@@ -33,8 +33,6 @@ import numpy as np
 
 from sim2real.errors import ConfigError, UnknownNameError
 
-XYZ = 3
-SECTION_KEYS = ("read_s", "perceive_s", "infer_s", "command_s")
 _LABEL = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 
