@@ -75,6 +75,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     ),
     "replay": ("sim2real replay datasets/pick", "sim2real replay datasets/pick --episode 3 --step"),
     "policies": ("sim2real policies", "sim2real policies reach-ppo"),
+    "view": (
+        "sim2real view logs/mock.npz --frames datasets/mock --save mock.rrd",
+        "sim2real view logs/sim.npz logs/mock.npz --labels sim,mock",
+    ),
 }
 
 

@@ -30,6 +30,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     ),
     "robosuite": "robosuite",
     "ray": "ray",
+    "rerun": "view",
 }
 
 
@@ -85,6 +86,7 @@ COMMANDS: tuple[Command, ...] = (
     Command("finetune", "sim2real.cli.finetune", "learn on the mock or real arm", long=True),
     Command("replay", "sim2real.cli.replay", "read a recorded LeRobot dataset back"),
     Command("policies", "sim2real.cli.policies", "list the shipped, measured policies"),
+    Command("view", "sim2real.cli.view", "see a run in Rerun: arm, cameras, timing, safety"),
 )
 
 
