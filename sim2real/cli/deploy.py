@@ -6,6 +6,7 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import Any
 
 from sim2real.deploy.connection import add_arm_options, arm_connection
 from sim2real.deploy.replayed import PLACEMENT_SOURCES
@@ -39,8 +40,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--record-dataset", type=Path, default=None, metavar="DIR",
         help="write the episodes as a LeRobot dataset (v3.0; both cameras as videos)",
     )  # fmt: skip
+    parser.add_argument(
+        "--view",
+        metavar="spawn|connect[:ADDR]|save:FILE.rrd",
+        default=None,
+        help="stream every period to Rerun while the arm runs (the view extra): spawn a viewer, "
+        "connect to a running one, or save a recording",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("-v", "--verbose", action="store_true")
+
+
+def _live_view(where: str | None, policy: str, spec: Any, rate_hz: float) -> Any:
+    """``--view``: a LiveView over a RerunSink (a missing extra is named in one line)."""
+    if where is None:
+        return None
+    from sim2real.deploy.policy_io import policy_io
+    from sim2real.export.policy import load_policy
+    from sim2real.policies import resolve_policy
+    from sim2real.view.live import LiveView, RerunSink
+
+    target, _, address = where.partition(":")
+    meta = load_policy(resolve_policy(policy)).meta
+    objects = policy_io(spec, meta).contract.objects
+    sink = RerunSink(spec, objects, target=target, where=address or None, rate_hz=rate_hz)
+    return LiveView(sink).start()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,10 +90,15 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.record_dataset is not None and args.record_dataset.exists():
         raise ConfigError(f"--record-dataset {str(args.record_dataset)!r} exists; choose a new one")
-    result = deploy(
-        args.policy, spec, opts, config, log_path=args.log, video_path=args.video,
-        dataset_path=args.record_dataset,
-    )  # fmt: skip
+    live = _live_view(args.view, args.policy, spec, args.rate)
+    try:
+        result = deploy(
+            args.policy, spec, opts, config, log_path=args.log, video_path=args.video,
+            dataset_path=args.record_dataset, live=live,
+        )  # fmt: skip
+    finally:
+        if live is not None:
+            live.close()  # drains what is queued, then the sink writes or flushes
     summary = {"backend": opts.backend, **result.summary()}
     if args.json:
         print(json.dumps(summary))

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -28,6 +28,13 @@ if TYPE_CHECKING:  # worlds import MuJoCo; the deploy profile runs without it
 # A deploy's options are the arm connection (``connection.ArmConnection``): the name is kept
 # for the code and scripts that build one by it.
 DeployOptions = ArmConnection
+
+
+class LivePeriods(Protocol):
+    """Where a live view takes each period (``sim2real.view.live.LiveView``; the deploy runtime
+    does not import the viewer): it must return at once, whatever its consumer does."""
+
+    def log_period(self, row: Mapping[str, Any], frames_bgr: Any = None) -> bool: ...
 
 
 __all__ = ["BACKENDS", "PERCEPTIONS", "SIM_CLOCKS", "DeployOptions", "deploy", "run_policy"]
@@ -215,6 +222,7 @@ def deploy(
     log_path: Path | None = None,
     video_path: Path | None = None,
     dataset_path: Path | None = None,
+    live: LivePeriods | None = None,
 ) -> DeployResult:
     """Load the policy (a run dir, an exported file or a shipped name), check it fits this arm,
     build the backend around the task's contract, run the loop, clean up."""
@@ -232,7 +240,7 @@ def deploy(
         )
     return run_policy(
         lambda obs: policy(obs), io, spec, opts, config, log_path, video_path, meta.obs_keys,
-        dataset_path,
+        dataset_path, live,
     )  # fmt: skip
 
 
@@ -246,8 +254,11 @@ def run_policy(
     video_path: Path | None = None,
     obs_keys: tuple[str, ...] | None = None,
     dataset_path: Path | None = None,
+    live: LivePeriods | None = None,
 ) -> DeployResult:
-    """Any callable policy on a backend (a scripted one in tests, a learner's actor)."""
+    """Any callable policy on a backend (a scripted one in tests, a learner's actor). ``live``
+    (``sim2real.view.live.LiveView``) gets each period's log row and camera pair from the
+    control thread; it only queues them (its worker draws off the loop's path)."""
     with contextlib.ExitStack() as stack:
         arm, perception, world = BACKENDS[opts.backend](spec, io, opts, stack)
         bind = getattr(policy, "bind", None)
@@ -272,6 +283,8 @@ def run_policy(
                 writer.append_data(frames[0][:, :, ::-1])
             if recorder is not None:
                 recorder.on_period(frames)
+            if live is not None:
+                live.log_period({k: v[-1] for k, v in loop.log.rows.items() if v}, frames)
 
         loop = DeployLoop(
             arm,
@@ -281,7 +294,7 @@ def run_policy(
             io,
             config,
             log_path=log_path,
-            on_frame=on_frame if writer is not None or recorder is not None else None,
+            on_frame=on_frame if (writer, recorder, live) != (None, None, None) else None,
             obs_keys=obs_keys,
             on_episode=None if recorder is None else recorder.on_episode,
         )
