@@ -193,8 +193,9 @@ def _reproduce(rows: list[dict[str, Any]]) -> list[str]:
 def shipped_table(rows: list[dict[str, Any]], shipped: dict[str, dict[str, Any]]) -> list[str]:
     """Held-out success of every shipped policy, one row each, from the records."""
     by_policy: dict[str, dict[str, dict[str, Any]]] = {}
-    for r in rows:
-        by_policy.setdefault(str(r["policy"]), {})[str(r["metric"])] = r
+    for r in rows:  # a retired policy's figures stay in the records (history), not in this table
+        if str(r["policy"]) in shipped:
+            by_policy.setdefault(str(r["policy"]), {})[str(r["metric"])] = r
     out = [
         "| policy | task | DR `default` | DR `none` | episodes | measured | commit |",
         "|---|---|---|---|---|---|---|",

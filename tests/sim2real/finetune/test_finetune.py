@@ -302,23 +302,23 @@ def test_sigkill_mid_finetune_the_learner_dies_and_resume_loses_at_most_one_epis
     assert summary["env_steps"] > state["env_steps"]
 
 
-def test_pick_finetunes_from_the_shipped_td3_paid_its_shaping_from_percepts(
+def test_pick_finetunes_from_the_shipped_ddpg_paid_its_shaping_from_percepts(
     tmp_path: Path, spec: ArmSpec
 ) -> None:
-    """pick-td3 (warm-started from pick-ppo) learns on SimArm's MuJoCo: the learner's rewards are
-    the env's (goal term plus pick's shaping from percepts, no action-rate penalty: td3_pick has
-    none) and its actor moves off the shipped one."""
+    """pick-ddpg learns on SimArm's MuJoCo: the learner's rewards are the env's (goal term plus
+    pick's shaping from percepts, no action-rate penalty: ddpg_pick has none) and its actor moves
+    off the shipped one."""
     from sim2real.envs.base import REWARDS
     from sim2real.finetune.checkpoint import FinetuneDir
     from sim2real.policies import shipped
 
     out = tmp_path / "ft"
     sim = DeployOptions(backend="sim", sim_clock="lockstep")
-    opts = _options(out, policy="pick-td3", deploy=sim, max_episodes=2)
+    opts = _options(out, policy="pick-ddpg", deploy=sim, max_episodes=2)
     summary = finetune(opts, spec)
     assert summary["stopped"] is None and summary["episodes"] == 2
     assert summary["relabel"] == 0.0  # pick's goal is not relabelled
-    source = shipped()["pick-td3"].checkpoint
+    source = shipped()["pick-ddpg"].checkpoint
     assert source is not None and summary["learner_updates"] > 0
     assert not np.allclose(_actor(out / "model.zip"), _actor(source[0]))
     logs = [np.load(out / "episodes" / f"episode_{k:05d}.npz") for k in range(2)]
