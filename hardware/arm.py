@@ -64,6 +64,11 @@ class ArmState:
     timestamp_s: float  # time.monotonic() of the reading (sim time for SimArm)
     velocities_rad_s: np.ndarray | None = None  # (n_actuators,) where the servos report it
     loads: np.ndarray | None = None  # (n_actuators,) signed fraction of max torque, if reported
+    # (n_actuators,) bool: True where the position was measured on the horn, False where it is
+    # the command the servo was sent (a bare PWM servo). None: every position is measured (a
+    # backend that reads the joint itself, as SimArm reads MuJoCo). The serial backend always
+    # says which, from the wire.
+    measured: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         pos = _frozen(self.positions_rad)
@@ -76,6 +81,19 @@ class ArmState:
             if value is not None and value.shape != pos.shape:
                 raise ValueError(f"{key} must have shape {pos.shape}, got {value.shape}")
             object.__setattr__(self, key, value)
+        if self.measured is not None:
+            m = np.array(self.measured, dtype=bool, copy=True)
+            if m.shape != pos.shape:
+                raise ValueError(f"measured must have shape {pos.shape}, got {m.shape}")
+            m.setflags(write=False)
+            object.__setattr__(self, "measured", m)
+
+    @property
+    def measured_mask(self) -> np.ndarray:
+        """(n_actuators,) bool: which positions were measured (all, where None)."""
+        if self.measured is None:
+            return np.ones(self.positions_rad.shape, dtype=bool)
+        return self.measured
 
 
 @runtime_checkable

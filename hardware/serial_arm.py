@@ -157,11 +157,15 @@ class SerialArm(ArmBase):
             vel = cal.direction * us.velocities / cal.scale_units_per_rad
         if us.loads is not None:
             loads = cal.direction * us.loads
+        measured = us.measured
+        if measured is None:  # a protocol that does not say: only its commands are known
+            measured = np.zeros(self.spec.n_actuators, dtype=bool)
         return ArmState(
             positions_rad=cal.from_units(us.positions),
             timestamp_s=us.timestamp_s,
             velocities_rad_s=vel,
             loads=loads,
+            measured=measured,
         )
 
     def _read_state(self) -> ArmState:

@@ -154,6 +154,13 @@ class ServoBank:
         # Set by ``attach_body``: where an outside body (the mock world's physics) holds the horns.
         self.body_rad: np.ndarray | None = None
         self.body_vel_rad_s = np.zeros_like(self.pos)
+        # Jammed servos (a stripped gear wedged, a cable caught): the horn stays where it is
+        # whatever the command, and the motor pushes against it (full effort).
+        self.jammed = np.zeros(self.pos.shape, dtype=bool)
+
+    def jam(self, mask: np.ndarray) -> None:
+        """From now on the servos in ``mask`` (n,) bool do not move; ``jam(zeros)`` frees them."""
+        self.jammed = np.asarray(mask, dtype=bool).copy()
 
     def attach_body(self) -> None:
         """From now on an outside body moves the horns: the mock world's MuJoCo arm, whose
@@ -224,9 +231,11 @@ class ServoBank:
             self.p.deadband_rad,
             on,
         )
+        move = np.where(self.jammed, 0.0, move)
         self.pos = self.pos + move
         self.vel = move / dt_s
         self.effort = np.where(on, np.clip(err / 0.2, -1.0, 1.0), 0.0)
+        self.effort = np.where(on & self.jammed & (np.abs(err) > 0), np.sign(err), self.effort)
 
     def reading_rad(self) -> np.ndarray:
         """What the servo's sensor reports: quantised, with noise."""

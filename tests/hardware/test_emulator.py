@@ -391,3 +391,36 @@ def test_lazy_dynamics_do_not_depend_on_when_anyone_looks(spec: ArmSpec) -> None
     start = np.array(spec.actuator_park_rad)
     assert np.all(np.abs(once - start) > 0.2)  # it moved (150 us = 0.24 rad)
     np.testing.assert_allclose(often, once, atol=1e-9)
+
+
+@pytest.mark.parametrize("feedback", ["measured", "commanded"])
+def test_s2r_readings_follow_the_build(
+    quick_spec: ArmSpec, make_emulator: Callable[..., Emulator], feedback: str
+) -> None:
+    """The firmware model in the build the spec asks for: with pots (measured) a jammed elbow
+    reads where it is stuck; on bare PWM servos (commanded) it reads the pulse it was sent, and
+    the STATE frame says which, so the host cannot mistake one for the other."""
+    spec = quick_spec.with_feedback(feedback)
+    emu = make_emulator(spec, "s2r")
+    with SerialArm(spec, emu.port, protocol="s2r", host_watchdog_s=None) as arm:
+        arm.enable()
+        stuck = emu.true_positions_rad()[2]
+        emu.jam("elbow")
+        goal = arm.read_state().positions_rad.copy()
+        goal[2] += 0.2
+        for _ in range(40):
+            arm.command(goal)
+            time.sleep(0.01)
+        assert emu.wait_until(lambda: abs(arm.read_state().positions_rad[2] - goal[2]) < 0.01) == (
+            feedback == "commanded"
+        )
+        state = arm.read_state()
+        assert state.measured is not None
+        assert state.measured.tolist() == [feedback == "measured"] * spec.n_actuators
+        assert emu.true_positions_rad()[2] == pytest.approx(stuck, abs=1e-9)  # it never moved
+        if feedback == "measured":
+            assert state.positions_rad[2] == pytest.approx(stuck, abs=0.01)
+        emu.jam()  # freed: it goes where it was told
+        assert emu.wait_until(lambda: abs(emu.true_positions_rad()[2] - goal[2]) < 0.02)
+    with pytest.raises(HardwareError, match=r"cannot jam \['wrist'\]"):
+        emu.jam("wrist")
