@@ -298,3 +298,40 @@ class StepServo:
             out = np.rint(out * self.per_quantum) * self.quantum_rad
         self.applied_rad = out
         return out
+
+
+def arrival_time_s(
+    spec: ArmSpec,
+    start_rad: np.ndarray,
+    goal_rad: np.ndarray,
+    tolerance_rad: float,
+    command_speed_rad_s: float | None = None,
+    dt_s: float = 0.001,
+    max_s: float = 30.0,
+) -> np.ndarray:
+    """How long (n_actuators,) after a move's first command a healthy servo of ``spec`` sits
+    within ``tolerance_rad`` of ``goal_rad``, from rest at ``start_rad``: the command slewed at
+    the servo's speed (as the arm3 firmware slews its output), then the latency, the lag, the
+    rate limit and the dead band of the one servo model. What the host waits for a joint whose
+    reading is its own command (``feedback: commanded``): it cannot see the horn arrive. A host
+    that ramps its commands slower passes ``command_speed_rad_s``."""
+    params = ServoParams.from_spec(spec)
+    start = np.asarray(start_rad, dtype=float)
+    goal = np.asarray(goal_rad, dtype=float)
+    vmax = params.max_speed_rad_s
+    vcmd = vmax if command_speed_rad_s is None else np.minimum(vmax, command_speed_rad_s)
+    cmd = start.copy()
+    pos = start.copy()
+    done = np.abs(goal - pos) <= tolerance_rad
+    out = np.zeros_like(pos)
+    steps = int(max_s / dt_s)
+    for k in range(1, steps + 1):
+        if done.all():
+            break
+        cmd = cmd + np.clip(goal - cmd, -vcmd * dt_s, vcmd * dt_s)
+        pos = pos + lag_step(pos, cmd, dt_s, params.time_constant_s, vmax, params.deadband_rad)
+        now = (np.abs(goal - pos) <= tolerance_rad) & (cmd == goal) & ~done
+        out[now] = k * dt_s
+        done |= now
+    out[~done] = max_s
+    return out + spec.servo.latency_s

@@ -358,6 +358,11 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         with self._lock:
             return self._powered.copy()
 
+    def device_targets_rad(self) -> np.ndarray:
+        """What the chip drives the servos towards right now (its latest pulses), in rad."""
+        with self._lock:
+            return self.mounting.from_units(self._pulse_us)
+
     def pulse_widths_us(self) -> np.ndarray:
         """The latest measured pulse width per servo, rounded to whole µs."""
         with self._lock:
