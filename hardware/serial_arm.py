@@ -214,9 +214,7 @@ class SerialArm(ArmBase):
         else:
             # torque off: a measured servo from where it is; one that reads its command from
             # where this host last sent it (after a reboot the device only knows park)
-            u = np.where(
-                state.measured_mask, self._quantise(state.positions_rad), self._last_units
-            )
+            u = np.where(state.measured_mask, self._quantise(state.positions_rad), self._last_units)
         self._last_units = u.astype(np.int64)
         return self.calibration.from_units(self._last_units)
 

@@ -208,8 +208,13 @@ def _traffic(seed: int, n: int) -> list[tuple[float, bytes]]:
         if kind < 0.30:
             payload = b"".join(rng.randrange(300, 2700).to_bytes(2, "little") for _ in range(n))
             data, moves = frame(s2r.SET_TARGETS, payload), True
-        elif kind < 0.36:
+        elif kind < 0.34:
             data = frame(s2r.TORQUE, bytes((rng.choice([0, 1, 1, 1, 2]),)))
+        elif kind < 0.36:  # torque on with start pulses (protocol 2), now and then malformed
+            starts = [rng.randrange(300, 2700) for _ in range(n)]
+            on = bytes((rng.choice([1, 1, 0]),))
+            data = frame(s2r.TORQUE, on + s2r.encode_targets(starts)[: rng.choice([2 * n, 3])])
+            moves = True
         elif kind < 0.46:
             data = frame(s2r.READ_STATE, b"")
         elif kind < 0.50:

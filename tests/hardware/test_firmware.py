@@ -226,3 +226,12 @@ def test_python_model_matches_cpp_core(
     assert mask == (0 if build == "replay" else 0b1111)
     states = [x for x in py if x.startswith("TX ") and x[13:15] in ("82", "83")]
     assert states and all(int(x[21:23], 16) == mask for x in states)  # the readings byte
+
+
+def test_the_wiring_figure_draws(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    from hardware.firmware.wiring_figure import main
+
+    out = tmp_path / "wiring.png"
+    assert main([str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
