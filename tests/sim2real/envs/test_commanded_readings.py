@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import sim2real.envs as envs
-from hardware.spec import ArmSpec, load_spec
+from hardware.spec import FEEDBACK_KINDS, ArmSpec, load_spec
+from sim2real.envs import fused, pick
 from sim2real.envs.contract import ObjectEstimate, Percept, View
 from sim2real.envs.pick import (
     GRASP_NEAR_M,
@@ -136,6 +137,10 @@ def test_the_scripted_pick_picks_on_a_pwm_arm_and_the_estimates_follow_the_cube(
     finally:
         env.close()
     assert blind_ends >= 3  # most ends: the cube out of sight, carried by the grasp judgement
+
+
+def test_every_reading_kind_has_a_grasp_rule_in_python_and_compiled() -> None:
+    assert set(pick.HOLD_RULES) == set(FEEDBACK_KINDS) == set(fused.HOLD_RULES)
 
 
 def test_judge_holding_follows_the_gripper_reading_kind() -> None:
