@@ -556,8 +556,9 @@ class Adapter:
         out = self.out / "policy.onnx"
         export_policy(self.out / "finetune", "onnx", out)  # written atomically (onnx_io)
         meta = load_policy(out).meta
-        fitted = self._fitted().fingerprint()
-        meta.check_spec(fitted)
+        fitted_spec = self._fitted()
+        meta.check_spec(fitted_spec)
+        fitted = fitted_spec.fingerprint()
         return {"policy": "policy.onnx", "bytes": out.stat().st_size, "fingerprint": fitted}
 
     def _stage_evaluate(self) -> dict[str, Any]:

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from hardware.arm import ArmBase
+from hardware.feedback import readings_mismatch, spec_protocol_problem
 from hardware.spec import ArmSpec
 from sim2real.deploy.connection import BACKENDS, PERCEPTIONS, SIM_CLOCKS, ArmConnection
 from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig
@@ -62,6 +63,28 @@ def build_sim(
     return arm, OraclePerception(truth), world
 
 
+def check_protocol_readings(spec: ArmSpec, protocol: str) -> None:
+    """Before a port is opened: the spec's reading kinds must be ones ``protocol`` can deliver
+    (``hardware.feedback.READING_SOURCES``), one line naming the joints otherwise."""
+    why = spec_protocol_problem(spec, protocol)
+    if why:
+        raise ConfigError(
+            f"{why}: declare each joint's feedback as its servos report it (feedback: commanded "
+            "for bare PWM servos)"
+        )
+
+
+def check_device_readings(arm: ArmBase, spec: ArmSpec) -> None:
+    """At connect: the device's reading kinds (its first state's ``measured``) must be the
+    spec's, or the policy, trained on the spec's kinds, would run on the other kind."""
+    why = readings_mismatch(spec, arm.read_state().measured_mask)
+    if why:
+        raise ConfigError(
+            f"{why}: use the spec of the build on the port (potentiometers wired: measured; "
+            "bare PWM servos: commanded), or flash the board with this spec's limits"
+        )
+
+
 def _scene(io: PolicyIO) -> str:
     from sim2real.envs import TASKS
 
@@ -79,6 +102,7 @@ def build_mock(
     from sim2real.deploy.worlds import MockWorld
     from sim2real.model import RigSpec
 
+    check_protocol_readings(spec, opts.protocol)
     plant = opts.plant_for(spec)  # checked against the spec, its watchdog relaxed if asked
     rig, scene = RigSpec(), _scene(io)
     stereo, base_T_left = _mock_stereo(rig, opts)  # its files read before anything starts
@@ -102,6 +126,7 @@ def build_mock(
         **opts.relaxed_host(),
     )
     stack.enter_context(arm)
+    check_device_readings(arm, spec)
     arm.emulator = arm_process  # type: ignore[attr-defined]  # tests reach the mock through the arm
     arm.world = world  # type: ignore[attr-defined]
     perception = _stereo_perception(cameras, stereo, base_T_left, spec, io, opts, stack)
@@ -186,6 +211,7 @@ def _stereo_perception(
 def build_serial(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
+    check_protocol_readings(spec, opts.protocol)
     if opts.perception == "fk":  # no cameras (and no MuJoCo): sim2real.deploy.kinematic
         from sim2real.deploy.kinematic import build_serial_fk
 
@@ -210,6 +236,7 @@ def build_serial(
     frames.start()
     arm = SerialArm(spec, opts.port, opts.protocol, opts.baud, opts.joint_calibration)
     stack.enter_context(arm)
+    check_device_readings(arm, spec)
     perception = _stereo_perception(frames, stereo, base_T_left, spec, io, opts, stack)
     return arm, perception, CameraWorld()
 
@@ -231,7 +258,7 @@ def deploy(
 
     policy = load_policy(resolve_policy(policy_ref))
     meta = policy.meta
-    meta.check_spec(spec.fingerprint())
+    meta.check_spec(spec)
     io = policy_io(spec, meta)
     if abs(meta.control_hz - config.rate_hz) > 1e-9:
         raise ConfigError(
