@@ -421,7 +421,7 @@ def observe(
                     echo[i] = echo[i] - slew[i]
             joints[i] = echo[i]
     for i in range(n_r):
-        v = joints[i] + prm[P_JOINT_BIAS + i]
+        v = joints[i] + prm[P_JOINT_BIAS + i] if slew[i] == 0.0 else joints[i] + 0.0
         if jn > 0 and slew[i] == 0.0:
             v = v + jn * noise[i]
         if res > 0:

@@ -16,9 +16,9 @@ quantisation) or *commanded* (``hardware.spec.FEEDBACK_KINDS``: a board driving 
 can only echo the pulse it sent). A commanded reading is that echo: the command the host sent
 (after its safety filter), slewed as the firmware slews its output pulse (at most
 ``slew_rad_per_step`` per period: the spec's speed times the period; the firmware's µs rate is
-its floor), with the joint-calibration bias (the sim's command drives qpos, its pulse→rad map
-reads qpos + bias: the echo passes through both) and the quantisation of the reading's units, and
-without noise: a digital echo is exact. It shares the delay line: the host reads every position
+its floor), in the quantisation of the reading's units, without the joint-calibration bias (the
+host converts the echoed pulse back with the very map it sent with: a calibration error moves the
+horn, which the kinematics DR models, never the echo) and without noise: a digital echo is exact. It shares the delay line: the host reads every position
 in one state frame. It cannot show lag, droop, a stall or a grasped cube.
 """
 
@@ -210,7 +210,12 @@ class SensorModel:
             if sent_rad is None:
                 raise ValueError("commanded readings need sent_rad, the command they echo")
             q_rad = np.where(self.commanded, self.echo(sent_rad[:n]), q_rad)
-        joints = q_rad + self.joint_bias
+        bias = (
+            np.where(self.commanded, 0.0, self.joint_bias)
+            if self.any_commanded
+            else self.joint_bias
+        )
+        joints = q_rad + bias
         if self.joint_noise > 0:
             noisy = joints + self.joint_noise * z[:n]
             joints = np.where(self.commanded, joints, noisy) if self.any_commanded else noisy
