@@ -271,6 +271,54 @@ def deploy(
     )  # fmt: skip
 
 
+def _outputs(
+    stack: contextlib.ExitStack,
+    perception: Any,
+    spec: ArmSpec,
+    io: PolicyIO,
+    config: LoopConfig,
+    video_path: Path | None,
+    dataset_path: Path | None,
+) -> tuple[Any, Any]:
+    """What a run writes besides its log: a video of the left camera, a LeRobot dataset."""
+    cameras = isinstance(perception, StereoPerception)
+    writer = None
+    if video_path is not None and cameras:
+        import imageio.v2 as imageio
+
+        writer = imageio.get_writer(str(video_path), fps=config.rate_hz, macro_block_size=8)
+        stack.callback(writer.close)
+    recorder = None
+    if dataset_path is not None:
+        from sim2real.deploy.recording import DeployRecorder
+
+        recorder = DeployRecorder(dataset_path, spec, io, config.rate_hz, cameras)
+    return writer, recorder
+
+
+def _on_frame(
+    perception: Any,
+    writer: Any,
+    recorder: Any,
+    live: LivePeriods | None,
+    rows: Callable[[], Mapping[str, list[Any]]],
+) -> Callable[[], None] | None:
+    """The loop's per-period callback feeding them (None: nothing to feed)."""
+    if writer is None and recorder is None and live is None:
+        return None
+
+    def on_frame() -> None:
+        frames = perception.last_frames if isinstance(perception, StereoPerception) else None
+        if writer is not None and frames is not None:
+            writer.append_data(frames[0][:, :, ::-1])
+        if recorder is not None:
+            recorder.on_period(frames)
+        if live is not None:
+            live.log_period({k: v[-1] for k, v in rows().items() if v}, frames)
+
+    return on_frame
+
+
 def run_policy(
     policy: Callable[[Any], np.ndarray],
     io: PolicyIO,
@@ -291,28 +339,8 @@ def run_policy(
         bind = getattr(policy, "bind", None)
         if callable(bind):  # a privileged teacher (privileged.TruthTeacher) reads the truth
             world = bind(arm, world)
-        cameras = isinstance(perception, StereoPerception)
-        writer = None
-        if video_path is not None and cameras:
-            import imageio.v2 as imageio
-
-            writer = imageio.get_writer(str(video_path), fps=config.rate_hz, macro_block_size=8)
-            stack.callback(writer.close)
-        recorder = None
-        if dataset_path is not None:
-            from sim2real.deploy.recording import DeployRecorder
-
-            recorder = DeployRecorder(dataset_path, spec, io, config.rate_hz, cameras)
-
-        def on_frame() -> None:
-            frames = perception.last_frames if isinstance(perception, StereoPerception) else None
-            if writer is not None and frames is not None:
-                writer.append_data(frames[0][:, :, ::-1])
-            if recorder is not None:
-                recorder.on_period(frames)
-            if live is not None:
-                live.log_period({k: v[-1] for k, v in loop.log.rows.items() if v}, frames)
-
+        writer, recorder = _outputs(stack, perception, spec, io, config, video_path, dataset_path)
+        on_frame = _on_frame(perception, writer, recorder, live, lambda: loop.log.rows)
         loop = DeployLoop(
             arm,
             perception,
@@ -321,7 +349,7 @@ def run_policy(
             io,
             config,
             log_path=log_path,
-            on_frame=on_frame if (writer, recorder, live) != (None, None, None) else None,
+            on_frame=on_frame,
             obs_keys=obs_keys,
             on_episode=None if recorder is None else recorder.on_episode,
         )
