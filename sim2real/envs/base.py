@@ -101,6 +101,9 @@ class Task(ABC):
     # hidden in fingers that held it (``pick.held_seen``).
     hold_margin_rad: ClassVar[float] = math.inf
     grasp_near_m: ClassVar[float] = 0.0
+    # A sighting this far from the tool while the fingers hold the object is not the object
+    # (``pick.cube_estimate``): the estimate stays with the tool.
+    held_away_m: ClassVar[float] = math.inf
     blind_cap_s: ClassVar[float] = 0.0
     # ``shaping`` compiled into the observation's call (``fused.SHAPING_RULES``), fed by
     # ``shaping_ids``/``shaping_prm``, which the task keeps current; "none": ``shaping`` runs.
@@ -612,6 +615,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         prm[fused.P_GRIP_CLOSED : fused.P_GRIP_READ + 1] = (closed, opened, gap, grip_reading)
         prm[fused.P_HOLD_MARGIN] = self.task.hold_margin_rad
         prm[fused.P_HOLD_NEAR] = self.task.grasp_near_m
+        prm[fused.P_HELD_AWAY] = self.task.held_away_m
         grip_kind = g.feedback if g is not None and grip_reading else "measured"
         prm[fused.P_HOLD_RULE] = fused.HOLD_RULES[grip_kind]
         prm[fused.P_BLIND_CAP] = self.task.blind_cap_s
@@ -648,6 +652,7 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         fused.put_sensing(self._prm, sensors)
         delay, k = sensors.delay_steps, self.task.n_points
         self._obs_ints[: fused.S_RNG_NEXT] = (delay, 0, 0, 0)
+        self._obs_ints[fused.S_CARRIED] = 0
         self._obs_mem = fused.observe_memory(k, self._n_readings, delay)
         self._goals = fused.observe_goals(self._obs_mem, k)
 

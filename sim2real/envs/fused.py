@@ -248,15 +248,17 @@ P_GRIP_CLOSED, P_GRIP_OPEN, P_GRIP_GAP, P_GRIP_READ = 8, 9, 10, 11
 P_HOLD_MARGIN, P_BLIND_CAP, P_SIGN0, P_SIGN1, P_SIGN2 = 12, 13, 14, 15, 16
 P_UPPER, P_FORE, P_TOOL_FWD, P_BASE_H, P_TOOL_DOWN = 17, 18, 19, 20, 21
 P_GOAL_RULE, P_OCCLUDABLE, P_SHAPING, P_HOLD_RULE, P_HOLD_NEAR = 22, 23, 24, 25, 26
+P_HELD_AWAY = 27  # a sighting this far from the tool is not the object the fingers hold
 # the sensor model's vectors: position bias, σ coefficients, camera position, its z axis and
 # base_R_cam (row-major); then per joint reading its bias, then its echo's slew per period
 # (``SensorModel.slew_rad_per_step``; 0.0: a measured reading), to the end
-P_POS_BIAS, P_SIGMA, P_CAM_P, P_CAM_Z, P_CAM_R, P_JOINT_BIAS = 27, 30, 33, 36, 39, 48
+P_POS_BIAS, P_SIGMA, P_CAM_P, P_CAM_Z, P_CAM_R, P_JOINT_BIAS = 28, 31, 34, 37, 40, 49
 N_PRM = P_JOINT_BIAS  # ``prm`` has N_PRM + 2 × (number of joint readings) slots
 # ``state``: the delay line's length and count, whether the points were seen since the reset,
 # the last period's grasp judgement (``HOLD_RULES["commanded"]``), and the generator the
 # occlusion draws come from (``bind_rng``)
-S_DELAY, S_COUNT, S_SEEN, S_HELD, S_RNG_NEXT, S_RNG_STATE, N_STATE = 0, 1, 2, 3, 4, 5, 6
+S_DELAY, S_COUNT, S_SEEN, S_HELD, S_RNG_NEXT, S_RNG_STATE, N_STATE = 0, 1, 2, 3, 4, 5, 7
+S_CARRIED = 6  # the last period's object estimate was the tool (``pick.cube_estimate``)
 
 # How a task's observed goal is formed (``Task.goal_rule``): (achieved, desired).
 GOAL_RULES = {
@@ -506,8 +508,16 @@ def observe(
                     h2 = obj[2] - points[0, 2]
                     held = math.sqrt(_dot3(h0, h1, h2, h0, h1, h2)) < prm[P_HOLD_NEAR]
             state[S_HELD] = 1 if held else 0
-        if blind[0] > 0.0 and held:
-            obj = points[0]
+        carried = False
+        if held:  # hidden in the fingers, or, carried, "seen" where the object in them is not
+            a0 = obj[0] - points[0, 0]
+            a1 = obj[1] - points[0, 1]
+            a2 = obj[2] - points[0, 2]
+            away = math.sqrt(_dot3(a0, a1, a2, a0, a1, a2)) > prm[P_HELD_AWAY]
+            carried = blind[0] > 0.0 or (away and state[S_CARRIED] != 0)
+            if carried:
+                obj = points[0]
+        state[S_CARRIED] = 1 if carried else 0
     if prm[P_GOAL_RULE] == 0:
         achieved, desired = points[0], obj
     else:

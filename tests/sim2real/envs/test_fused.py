@@ -232,6 +232,7 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
         )  # fmt: skip
         prm[fused.P_HOLD_MARGIN], prm[fused.P_BLIND_CAP] = HOLD_MARGIN_RAD, BLIND_CAP_S
         prm[fused.P_HOLD_NEAR] = task.grasp_near_m
+        prm[fused.P_HELD_AWAY] = task.held_away_m
         prm[fused.P_HOLD_RULE] = fused.HOLD_RULES[grip_kind]
         prm[fused.P_SIGN0 : fused.P_SIGN2 + 1] = [j.sign for j in SPEC.joints[:3]]
         L = SPEC.links
@@ -247,7 +248,7 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
         mem = fused.observe_memory(1, n_r, delay)
         goals = fused.observe_goals(mem, 1)
         aux = rng.uniform(-0.2, 0.2, (2, 3))
-        was_held, grip_rad = False, g.open_rad
+        was_held, grip_rad, carried = False, g.open_rad, False
         for _ in range(40):
             qpos = rng.uniform(-1.5, 1.5, n_r + 2)
             if task.uses_gripper:
@@ -284,8 +285,8 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
                 if grasp and grip_kind == "commanded":
                     held_counts["hidden" if blind[0] > 0 and was_held else "near"] += 1
                 was_held = grasp
-            if blind[0] > 0:
-                obj = cube_estimate(obj, ee, blind[0], grasp)
+            estimate = cube_estimate(obj, ee, blind[0], grasp, carried)
+            carried, obj = estimate is not obj, estimate
             achieved, desired = (ee, obj) if task.goal_rule == "tool_to_point" else (obj, aux[0])
             readings = {
                 "joint_pos": joints,
