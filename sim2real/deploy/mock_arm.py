@@ -42,8 +42,8 @@ from hardware.emulator.lifecycle import PtyDevice
 from hardware.emulator.server import EmulatorConfig
 from hardware.errors import HardwareError
 from hardware.plant import Plant
+from sim2real.camera_rig import RigSpec
 from sim2real.deploy.child import child_env, death_line, one_line
-from sim2real.model import RigSpec
 
 log = logging.getLogger(__name__)
 

@@ -16,21 +16,24 @@ by name in a third process (``SharedFrames``): the perception process reads the 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
+import pickle
 import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from multiprocessing import shared_memory
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hardware.errors import HardwareError
 from sim2real.deploy.child import child_env
 from sim2real.deploy.frames import FramePair
+
+if TYPE_CHECKING:
+    from sim2real.twin_mjcf import TwinScene
 
 # frame header (float64): per slot [lock, capture_s, seq]; then [newest slot, pairs published]
 _SLOT_FIELDS = 3
@@ -43,7 +46,7 @@ _STOP, _FROZEN = 1.0, 2.0
 
 @dataclass(frozen=True)
 class RenderConfig:
-    xml: str  # the scene, markers included (textures are installed in the child)
+    twin: TwinScene  # the scene, markers included (textures are installed in the child)
     cameras: tuple[str, str] = ("cam_left", "cam_right")
     width_px: int = 640
     height_px: int = 480
@@ -148,7 +151,7 @@ def _render_main(cfg: RenderConfig, names: tuple[str, str], sizes: tuple[int, in
     from sim2real.rendering import FastRenderer
 
     nq, nmocap, n_state = sizes
-    model = mujoco.MjModel.from_xml_string(cfg.xml)
+    model = cfg.twin.model()
     install_marker_textures(model)
     data = mujoco.MjData(model)
     shared = _Shared.attach(names, n_state, cfg.height_px, cfg.width_px)
@@ -345,11 +348,8 @@ class RenderedStereoCameras:
     def start(self) -> None:
         """Start the render process: ``python -m sim2real.deploy.render_process`` (not
         multiprocessing: a spawned child would re-import the user's ``__main__`` script)."""
-        job = {
-            "cfg": asdict(self.cfg),
-            "names": [self._state_shm.name, self._frames_shm.name],
-            "sizes": [self._nq, self._nmocap, self._n_state],
-        }
+        names = (self._state_shm.name, self._frames_shm.name)
+        job = (self.cfg, names, (self._nq, self._nmocap, self._n_state))
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "sim2real.deploy.render_process"],
             stdin=subprocess.PIPE,
@@ -358,7 +358,7 @@ class RenderedStereoCameras:
             env=child_env(),  # single-threaded BLAS: no worker thread to wait on
         )
         assert self._proc.stdin is not None
-        self._proc.stdin.write(json.dumps(job).encode())
+        self._proc.stdin.write(pickle.dumps(job))
         self._proc.stdin.close()
 
     def publish(
@@ -426,13 +426,9 @@ class RenderedStereoCameras:
 
 
 def main() -> None:
-    """The render process's entry point: the job arrives as JSON on stdin."""
-    job = json.loads(sys.stdin.read())
-    names = (str(job["names"][0]), str(job["names"][1]))
-    nq, nmocap, n_state = (int(v) for v in job["sizes"])
-    cfg = job["cfg"]
-    cfg["cameras"] = tuple(cfg["cameras"])
-    _render_main(RenderConfig(**cfg), names, (nq, nmocap, n_state))
+    """The render process's entry point: the job arrives pickled on stdin."""
+    cfg, names, sizes = pickle.load(sys.stdin.buffer)
+    _render_main(cfg, names, sizes)
 
 
 if __name__ == "__main__":
