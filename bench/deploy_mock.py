@@ -214,7 +214,7 @@ def main() -> None:
                      wall_s=round(time.perf_counter() - t0, 1),
                      load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
                 continue
-            s = res.summary()
+            s = res.summary().to_json()
             rates[backend] = s["success_rate"]
             outcomes[backend] = [e.success for e in res.episodes]
             emit(f"deploy_{backend}_success", s["success_rate"], "fraction", policy=ref,
@@ -279,7 +279,7 @@ def main() -> None:
                     live.close()
                     emit("timing_busy_core_live_view", {"drawn": live.drawn,
                          "dropped": live.dropped}, "periods", policy=ref, variant=variant)  # fmt: skip
-            s = res.summary()
+            s = res.summary().to_json()
             jitter = s["period_jitter_ms"]
             emit("timing_busy_core_loop_hz", round(s["loop_hz"], 3), "Hz", policy=ref, target=20,
                  variant=variant, machine=machine, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip

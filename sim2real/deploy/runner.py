@@ -144,16 +144,14 @@ def _mock_cameras(
     """The rig's two cameras rendering the plant's scene in a process of their own, started.
     Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
     arrive late rather than never, so its timeout is longer than a USB camera's."""
-    import mujoco
-
     from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
-    from sim2real.model import build_mjcf
+    from sim2real.twin_mjcf import TwinScene
 
-    xml = build_mjcf(plant_spec, scene, rig, markers=True)
-    model = mujoco.MjModel.from_xml_string(xml)
+    twin = TwinScene(plant_spec, scene, rig, markers=True)
+    model = twin.model()
     cam = rig.cameras[0]
     cameras = RenderedStereoCameras(
-        RenderConfig(xml=xml, width_px=cam.width_px, height_px=cam.height_px,
+        RenderConfig(twin=twin, width_px=cam.width_px, height_px=cam.height_px,
                      fps=opts.camera_fps, nice=opts.camera_nice,
                      timeout_s=opts.camera_timeout_s or 5.0),
         model.nq, model.nmocap,

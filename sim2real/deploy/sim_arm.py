@@ -28,9 +28,11 @@ import numpy as np
 from hardware.arm import ArmBase, ArmState
 from hardware.spec import ArmSpec
 from sim2real.actuation import ServoActuation
+from sim2real.camera_rig import RigSpec
 from sim2real.errors import UnknownNameError
-from sim2real.model import FINGER_GEOMS, ArmTwin, RigSpec, build_model
-from sim2real.scene_names import FINGER_JOINTS
+from sim2real.scene_names import FINGER_GEOMS, FINGER_JOINTS
+from sim2real.twin import ArmTwin
+from sim2real.twin_mjcf import build_model
 
 CLOCKS = ("lockstep", "realtime")
 # The finger actuator's damping (kv) is stiff for the 5 ms step and counts inside its force

@@ -242,10 +242,25 @@ def register_task(cls: type[Task]) -> type[Task]:
     return cls
 
 
+_NOT_COPYABLE = (
+    "{} cannot be copied or pickled (its compiled step reads views of its own MuJoCo "
+    "buffers): make another with sim2real.envs.make(id, **kwargs) and reset it with the seed"
+)
+
+
 class Arm3Env(gym.Env[Any, np.ndarray]):
     """The hobby arm in MuJoCo with domain randomisation, for any registered ``Task``."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> Arm3Env:
+        """Refused (and pickling, ``__reduce_ex__``): the compiled step reads views of this env's
+        MuJoCo buffers and its observation memory, and draws from a generator bound by address
+        (``fused.RngBinding``); a copy's views would still read the original's arrays."""
+        raise TypeError(_NOT_COPYABLE.format(type(self).__name__))
+
+    def __reduce_ex__(self, protocol: Any) -> Any:
+        raise TypeError(_NOT_COPYABLE.format(type(self).__name__))
 
     def __init__(
         self,
