@@ -514,9 +514,11 @@ def observe(
             a1 = obj[1] - points[0, 1]
             a2 = obj[2] - points[0, 2]
             away = math.sqrt(_dot3(a0, a1, a2, a0, a1, a2)) > prm[P_HELD_AWAY]
-            carried = blind[0] > 0.0 or (away and state[S_CARRIED] != 0)
-            if carried:
+            if blind[0] > 0.0 or (away and state[S_CARRIED] != 0):
                 obj = points[0]
+                carried = True
+            else:
+                carried = not away
         state[S_CARRIED] = 1 if carried else 0
     if prm[P_GOAL_RULE] == 0:
         achieved, desired = points[0], obj

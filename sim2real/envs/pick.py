@@ -151,25 +151,28 @@ def cube_estimate(
     blind_s: float,
     is_holding: bool,
     carried: bool = False,
-) -> np.ndarray:
-    """The cube tracker's prediction with a grasp model: a cube out of sight in fingers that
-    hold something moves with the tool (it is between them); otherwise it stays where it was
-    last seen (a cube at rest does not move). Without the first rule a lifted cube's estimate
-    stays on the table, and so does ``goal_delta``: the policy cannot see its lift.
+) -> tuple[np.ndarray, bool]:
+    """The cube tracker's prediction with a grasp model, and whether the cube is now carried
+    (the next period's ``carried``): a cube out of sight in fingers that hold something moves
+    with the tool (it is between them); otherwise it stays where it was last seen (a cube at
+    rest does not move). Without the first rule a lifted cube's estimate stays on the table, and
+    so does ``goal_delta``: the policy cannot see its lift.
 
-    Once the estimate has been carried so (``carried``: the last period's estimate was the
-    tool), a sighting more than ``HELD_AWAY_M`` from the tool while the fingers still hold is
-    not the cube either: the cube in the fingers is at the tool. On the mock arm the tracker's
-    fit of a lifted cube, half hidden by the fingers and seen by one camera, put it 3-9 cm below
-    the tool in 10 of 283 sightings (all while held); the policy took the cube for dropped and
-    let go of it at the goal. (Not before a carry: a gripper closing in empty air reads "open"
-    for a few periods, and the cube seen on the table then is where it is.) The next period's
-    ``carried`` is whether this estimate is the tool."""
-    if is_holding:
-        d = np.asarray(cube_m, dtype=float) - np.asarray(tool_m, dtype=float)
-        if blind_s > 0.0 or (carried and math.sqrt(float(d @ d)) > HELD_AWAY_M):
-            return np.asarray(tool_m, dtype=float)
-    return cube_m
+    Carried (the fingers held it last period with its estimate at the tool), a sighting more
+    than ``HELD_AWAY_M`` from the tool while they still hold is not the cube either: the cube in
+    the fingers is at the tool. On the mock arm the tracker's fit of a lifted cube, half hidden
+    by the fingers and seen by one camera, put it 3-9 cm below the tool in 10 of 283 sightings
+    (all while held); the policy took the cube for dropped and let go of it at the goal. (Not
+    before a carry: a gripper closing in empty air reads "open" for a few periods, and the cube
+    seen away on the table then is where it is.)"""
+    if not is_holding:
+        return cube_m, False
+    tool = np.asarray(tool_m, dtype=float)
+    d = np.asarray(cube_m, dtype=float) - tool
+    away = math.sqrt(float(d @ d)) > HELD_AWAY_M
+    if blind_s > 0.0 or (carried and away):
+        return tool, True
+    return cube_m, not away
 
 
 def percept_shaping(
@@ -268,9 +271,7 @@ class PickContract(DeployContract):
             self._holding_now = judge_holding(
                 self.spec, commanded, reading, tool, cube, blind, self._holding_now
             )
-        estimate = cube_estimate(cube, tool, blind, self._holding_now, self._carried)
-        self._carried = estimate is not cube  # the tool took the sighting's place
-        cube = estimate
+        cube, self._carried = cube_estimate(cube, tool, blind, self._holding_now, self._carried)
         self._periods += 1
         self._blind_periods += int(blind > 0.0)
         self._max_blind_s = max(self._max_blind_s, blind)

@@ -285,8 +285,7 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
                 if grasp and grip_kind == "commanded":
                     held_counts["hidden" if blind[0] > 0 and was_held else "near"] += 1
                 was_held = grasp
-            estimate = cube_estimate(obj, ee, blind[0], grasp, carried)
-            carried, obj = estimate is not obj, estimate
+            obj, carried = cube_estimate(obj, ee, blind[0], grasp, carried)
             achieved, desired = (ee, obj) if task.goal_rule == "tool_to_point" else (obj, aux[0])
             readings = {
                 "joint_pos": joints,
