@@ -248,7 +248,7 @@ P_GRIP_CLOSED, P_GRIP_OPEN, P_GRIP_GAP, P_GRIP_READ = 8, 9, 10, 11
 P_HOLD_MARGIN, P_BLIND_CAP, P_SIGN0, P_SIGN1, P_SIGN2 = 12, 13, 14, 15, 16
 P_UPPER, P_FORE, P_TOOL_FWD, P_BASE_H, P_TOOL_DOWN = 17, 18, 19, 20, 21
 P_GOAL_RULE, P_OCCLUDABLE, P_SHAPING, P_HOLD_RULE, P_HOLD_NEAR = 22, 23, 24, 25, 26
-P_HELD_AWAY = 27  # a sighting this far from the tool is not the object the fingers hold
+P_HELD_AWAY = 27  # holding fingers carry an object seen this close to the tool
 # the sensor model's vectors: position bias, σ coefficients, camera position, its z axis and
 # base_R_cam (row-major); then per joint reading its bias, then its echo's slew per period
 # (``SensorModel.slew_rad_per_step``; 0.0: a measured reading), to the end
@@ -509,16 +509,15 @@ def observe(
                     held = math.sqrt(_dot3(h0, h1, h2, h0, h1, h2)) < prm[P_HOLD_NEAR]
             state[S_HELD] = 1 if held else 0
         carried = False
-        if held:  # hidden in the fingers, or, carried, "seen" where the object in them is not
-            a0 = obj[0] - points[0, 0]
-            a1 = obj[1] - points[0, 1]
-            a2 = obj[2] - points[0, 2]
-            away = math.sqrt(_dot3(a0, a1, a2, a0, a1, a2)) > prm[P_HELD_AWAY]
-            if blind[0] > 0.0 or (away and state[S_CARRIED] != 0):
+        if held:  # hidden in the fingers, or carried: at the tool, whatever the cameras say
+            if blind[0] > 0.0 or state[S_CARRIED] != 0:
                 obj = points[0]
                 carried = True
             else:
-                carried = not away
+                a0 = obj[0] - points[0, 0]
+                a1 = obj[1] - points[0, 1]
+                a2 = obj[2] - points[0, 2]
+                carried = math.sqrt(_dot3(a0, a1, a2, a0, a1, a2)) <= prm[P_HELD_AWAY]
         state[S_CARRIED] = 1 if carried else 0
     if prm[P_GOAL_RULE] == 0:
         achieved, desired = points[0], obj

@@ -153,26 +153,26 @@ def cube_estimate(
     carried: bool = False,
 ) -> tuple[np.ndarray, bool]:
     """The cube tracker's prediction with a grasp model, and whether the cube is now carried
-    (the next period's ``carried``): a cube out of sight in fingers that hold something moves
-    with the tool (it is between them); otherwise it stays where it was last seen (a cube at
-    rest does not move). Without the first rule a lifted cube's estimate stays on the table, and
-    so does ``goal_delta``: the policy cannot see its lift.
+    (the next period's ``carried``): a cube in fingers that hold it moves with the tool (it is
+    between them); otherwise it stays where it was last seen (a cube at rest does not move).
+    Without the first rule a lifted cube's estimate stays on the table, and so does
+    ``goal_delta``: the policy cannot see its lift.
 
-    Carried (the fingers held it last period with its estimate at the tool), a sighting more
-    than ``HELD_AWAY_M`` from the tool while they still hold is not the cube either: the cube in
-    the fingers is at the tool. On the mock arm the tracker's fit of a lifted cube, half hidden
-    by the fingers and seen by one camera, put it 3-9 cm below the tool in 10 of 283 sightings
-    (all while held); the policy took the cube for dropped and let go of it at the goal. (Not
-    before a carry: a gripper closing in empty air reads "open" for a few periods, and the cube
-    seen away on the table then is where it is.)"""
+    The cube is carried once the fingers hold it with its estimate within ``HELD_AWAY_M`` of
+    the tool, or hidden in them; from then on, while they hold, its estimate is the tool,
+    whatever the cameras say. On the mock arm the cameras said wrong things about a lifted cube:
+    the still-object tracker trailed a lifted cube by 2-3 cm, and a one-camera fit of the cube
+    half hidden by the fingers put it 3-9 cm below the tool in 10 of 283 sightings; the policy
+    took the cube for dropped and let go of it at the goal. Before a carry (a gripper closing in
+    empty air reads "open" for a few periods) the cube is where it was seen; after a drop the
+    fingers read shut, nothing is held, and the cameras judge again."""
     if not is_holding:
         return cube_m, False
     tool = np.asarray(tool_m, dtype=float)
-    d = np.asarray(cube_m, dtype=float) - tool
-    away = math.sqrt(float(d @ d)) > HELD_AWAY_M
-    if blind_s > 0.0 or (carried and away):
+    if blind_s > 0.0 or carried:
         return tool, True
-    return cube_m, not away
+    d = np.asarray(cube_m, dtype=float) - tool
+    return cube_m, math.sqrt(float(d @ d)) <= HELD_AWAY_M
 
 
 def percept_shaping(

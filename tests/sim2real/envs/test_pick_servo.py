@@ -68,11 +68,11 @@ def test_the_teacher_refuses_what_it_cannot_read_in_one_line() -> None:
         env.close()
 
 
-def test_a_cube_carried_in_the_fingers_is_not_where_a_stray_sighting_puts_it() -> None:
-    """``cube_estimate``: hidden in holding fingers, the cube is at the tool; once carried so, a
-    sighting far from the tool while still holding is not it (a misfit of the half-hidden cube);
-    one near the tool is; before any carry (a gripper still closing in empty air reads "open"),
-    a sighting on the table is where the cube is."""
+def test_a_cube_carried_in_the_fingers_is_at_the_tool_whatever_the_cameras_say() -> None:
+    """``cube_estimate``: hidden in holding fingers, or carried (held with its estimate at the
+    tool), the cube is at the tool; a sighting away from it then (a trailing tracker, a misfit
+    of the half-hidden cube) changes nothing; before any carry (a gripper still closing in empty
+    air reads "open"), a sighting on the table is where the cube is."""
     from sim2real.envs.pick import HELD_AWAY_M, cube_estimate
 
     tool = np.array([0.15, 0.02, 0.08])
@@ -85,7 +85,7 @@ def test_a_cube_carried_in_the_fingers_is_not_where_a_stray_sighting_puts_it() -
 
     check(cube_estimate(far, tool, 0.3, True), tool, True)  # hidden in holding fingers
     check(cube_estimate(far, tool, 0.0, True, carried=True), tool, True)  # a stray sighting
-    check(cube_estimate(near, tool, 0.0, True, carried=True), near, True)  # seen in the fingers
+    check(cube_estimate(near, tool, 0.0, True, carried=True), tool, True)  # carried: the tool
     check(cube_estimate(near, tool, 0.0, True, carried=False), near, True)  # just grasped
     check(cube_estimate(far, tool, 0.0, True, carried=False), far, False)  # closing in the air
     check(cube_estimate(far, tool, 0.0, False, carried=True), far, False)  # let go
