@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from hardware.errors import HardwareError
 from hardware.plant import Plant
@@ -25,11 +26,12 @@ from sim2real.deploy.mock_arm import MockArmJob, MockArmProcess
 from sim2real.deploy.policy_io import PolicyIO
 from sim2real.deploy.runner import DeployOptions, run_policy
 
-from .conftest import ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
+from .conftest import MOCK, ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
 
-EXIT_BOUND_S = 60.0
+EXIT_BOUND_S = scaled(60.0)
 
 
+@pytest.mark.realtime
 def test_the_control_channel_round_trips_and_the_pty_serves_the_arm(spec: ArmSpec) -> None:
     with MockArmProcess(MockArmJob(plant=Plant.nominal(spec), scene="pick")) as mock:
         assert mock.firmware == "Emulator" and mock.pid != os.getpid()
@@ -49,7 +51,7 @@ def test_the_control_channel_round_trips_and_the_pty_serves_the_arm(spec: ArmSpe
         mock.call("clear")
         assert np.linalg.norm(mock.truth()[1]["cube"][:2] - [0.16, 0.03]) > 0.3
         # the host talks to the arm through the pty only, as to a real one
-        with SerialArm(spec, mock.port, "s2r", timeout_s=0.5) as arm:
+        with SerialArm(spec, mock.port, "s2r", timeout_s=scaled(0.5)) as arm:
             state = arm.read_state()
             np.testing.assert_allclose(
                 state.positions_rad, mock.true_positions_rad(), atol=0.03
@@ -81,6 +83,7 @@ sys.stdin.read()  # until killed
 """
 
 
+@pytest.mark.realtime
 def test_the_arm_process_dies_when_its_host_is_killed() -> None:
     host = subprocess.Popen(
         [sys.executable, "-c", _HOST], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
@@ -102,6 +105,7 @@ def test_the_arm_process_dies_when_its_host_is_killed() -> None:
         kill_pid(child)
 
 
+@pytest.mark.realtime
 def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -125,8 +129,8 @@ def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
         with pytest.raises(HardwareError) as info:
             run_policy(
                 ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec,
-                DeployOptions(backend="mock", watchdog_s=2.0),
-                LoopConfig(episodes=2, start_timeout_s=60), log_path=log,
+                DeployOptions(**MOCK),
+                LoopConfig(episodes=2, start_timeout_s=scaled(60)), log_path=log,
             )  # fmt: skip
     finally:
         for pid in killed:

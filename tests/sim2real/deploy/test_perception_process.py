@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from hardware.arm import ArmState
 from hardware.errors import HardwareError
@@ -32,9 +33,9 @@ from sim2real.deploy.render_process import FrameBlock, SharedFrames
 from sim2real.deploy.runner import DeployOptions, run_policy
 from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
 
-from .conftest import ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
+from .conftest import MOCK, ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
 
-BOUND_S = 60.0
+BOUND_S = scaled(60.0)
 
 
 @pytest.fixture(scope="module")
@@ -159,6 +160,7 @@ sys.stdin.read()  # until killed
 """
 
 
+@pytest.mark.realtime
 def test_the_perception_process_dies_when_its_host_is_killed() -> None:
     host = subprocess.Popen(
         [sys.executable, "-c", _HOST], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
@@ -180,6 +182,7 @@ def test_the_perception_process_dies_when_its_host_is_killed() -> None:
         kill_pid(child)
 
 
+@pytest.mark.realtime
 def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -205,8 +208,8 @@ def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_t
         with pytest.raises(HardwareError) as info:
             run_policy(
                 ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec,
-                DeployOptions(backend="mock", watchdog_s=2.0),
-                LoopConfig(episodes=2, start_timeout_s=60), log_path=log,
+                DeployOptions(**MOCK),
+                LoopConfig(episodes=2, start_timeout_s=scaled(60)), log_path=log,
             )  # fmt: skip
     finally:
         for pid in killed:
