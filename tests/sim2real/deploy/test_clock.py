@@ -1,4 +1,8 @@
-"""The control period's clock: a grid of period starts, late periods counted, never caught up."""
+"""The control period's clock: a grid of period starts, late periods counted, never caught up.
+
+Load-proof: a stall (a loaded machine) only makes a period late, and each assertion holds for a
+late period too; the bounds are taken from the clock before and after the calls, never from a
+sleep that must end in time."""
 
 from __future__ import annotations
 
@@ -15,11 +19,14 @@ def test_an_episodes_first_period_is_not_measured_and_the_next_ones_are() -> Non
     clock.start()
     period_s, late_s = clock.tick()
     assert math.isnan(period_s) and math.isnan(late_s)  # nothing before it, nothing slept to
+    slept = 0
     for _ in range(3):
         clock.sleep()
         period_s, late_s = clock.tick()
-        assert period_s >= 0.0095 and late_s >= 0.0
-    assert len(clock.periods_s) == 3 and len(clock.wake_late_s) == 3
+        assert period_s >= clock.period_s - 1e-6  # on the grid, or late: never early
+        assert math.isnan(late_s) or late_s >= 0.0  # NaN: the period ran late, nothing slept
+        slept += not math.isnan(late_s)
+    assert len(clock.periods_s) == 3 and len(clock.wake_late_s) == slept
     clock.start()  # a new episode: its first period is not measured either
     assert math.isnan(clock.tick()[0]) and len(clock.periods_s) == 3
 
@@ -31,13 +38,13 @@ def test_a_late_period_is_counted_once_and_the_next_starts_at_once(
     clock.start()
     clock.tick()
     time.sleep(3 * clock.period_s)  # the period's work ran long
+    late_end = time.perf_counter()
     clock.sleep()  # nothing to sleep: the next period starts now, no burst to catch up
     period_s, late_s = clock.tick()
     assert period_s >= 3 * clock.period_s and math.isnan(late_s)
     assert clock.overruns == 1 and "overrun: period" in caplog.text
-    t0 = time.perf_counter()
-    clock.sleep()  # back on a grid that starts at the late period's end
-    assert time.perf_counter() - t0 >= 0.9 * clock.period_s
+    clock.sleep()  # back on a grid that starts at the late period's end, not before it
+    assert time.perf_counter() >= late_end + clock.period_s
 
 
 def test_restart_makes_a_pause_no_late_period() -> None:
@@ -45,10 +52,12 @@ def test_restart_makes_a_pause_no_late_period() -> None:
     clock.start()
     clock.tick()
     time.sleep(5 * clock.period_s)  # paused by a person
+    before_restart = time.perf_counter()
     clock.restart()
     clock.sleep()
     period_s, _ = clock.tick()
-    assert period_s < 4 * clock.period_s  # measured from the restart, not from before the pause
+    # measured from the restart, not from before the pause (however late this runs)
+    assert period_s <= time.perf_counter() - before_restart
 
 
 def test_sleep_until_never_wakes_early() -> None:
