@@ -155,7 +155,9 @@ def test_command_latency_over_the_pty(spec: ArmSpec) -> None:
         received_s = emu.applied("targets")[-1].t_s
     onset_s = received_s + latency_s
     assert moved_at >= onset_s - tick_s, (moved_at, onset_s)  # not before the latency
-    assert not still_at or max(still_at) <= onset_s + 2 * tick_s, (still_at[-3:], onset_s)
+    # nor later: the device takes the goal on a tick, the servo steps on the next, and a
+    # reading sees the last grid point before it: a few ticks of the emulator's own clock
+    assert not still_at or max(still_at) <= onset_s + 5 * tick_s, (still_at[-3:], onset_s)
 
 
 # ---- the pty ------------------------------------------------------------------------------------
