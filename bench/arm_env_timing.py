@@ -79,7 +79,7 @@ def main() -> None:
             lambda obs: policy(obs), io, spec, opts,
             LoopConfig(rate_hz=meta.control_hz, episodes=args.episodes, seed=args.seed),
         )  # fmt: skip
-        s = result.summary()
+        s = result.summary().to_json()
         if result.stopped_early:
             raise RuntimeError(result.stopped_early)
         return {

@@ -21,6 +21,7 @@ Per policy (a shipped name or a run dir), JSON lines:
 
     .venv/bin/python bench/deploy_mock.py pick-ppo trace-ppo --episodes 100
     .venv/bin/python bench/deploy_mock.py reach-ppo pick-ppo --timing --episodes 20 --backends ''
+    .venv/bin/python bench/deploy_mock.py pick-ppo --timing --view --backends ''   # live view on
 """
 
 from __future__ import annotations
@@ -90,6 +91,17 @@ def env_episodes(target: Any, dr: str, seeds: list[int]) -> tuple[dict[str, Any]
     return figures, [e.success for e in result.episodes]
 
 
+def live_view(ref: str, spec: Any, rrd: Path) -> Any:
+    """``deploy --view save:FILE``'s live view of ``ref``'s task (the ``view`` extra)."""
+    from sim2real.deploy.policy_io import policy_io
+    from sim2real.export.policy import load_policy
+    from sim2real.policies import resolve_policy
+    from sim2real.view.live import LiveView, RerunSink
+
+    objects = policy_io(spec, load_policy(resolve_policy(ref)).meta).contract.objects
+    return LiveView(RerunSink(spec, objects, target="save", where=str(rrd), rate_hz=20.0)).start()
+
+
 def pairs(first: list[bool], second: list[bool]) -> dict[str, int]:
     both = sum(a and b for a, b in zip(first, second, strict=True))
     only1 = sum(a and not b for a, b in zip(first, second, strict=True))
@@ -151,6 +163,12 @@ def main() -> None:
         help="timing run: the mock arm's process at normal priority (default: SCHED_FIFO)",
     )
     parser.add_argument(
+        "--view",
+        action="store_true",
+        help="timing run: stream every period to a live Rerun view saved to a temporary file "
+        "(deploy --view), to measure what the live view costs the loop",
+    )
+    parser.add_argument(
         "--mock-switch-interval",
         type=float,
         default=None,
@@ -196,7 +214,7 @@ def main() -> None:
                      wall_s=round(time.perf_counter() - t0, 1),
                      load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
                 continue
-            s = res.summary()
+            s = res.summary().to_json()
             rates[backend] = s["success_rate"]
             outcomes[backend] = [e.success for e in res.episodes]
             emit(f"deploy_{backend}_success", s["success_rate"], "fraction", policy=ref,
@@ -237,6 +255,7 @@ def main() -> None:
                 mock_realtime=not args.no_mock_realtime,
             )
             variant = {"realtime": timing_opts.realtime, "mock_nice": timing_opts.mock_nice,
+                       "live_view": args.view,
                        "mock_realtime": timing_opts.realtime and timing_opts.mock_realtime,
                        "switch_interval_s": args.switch_interval or sys.getswitchinterval(),
                        "mock_switch_interval_s": args.mock_switch_interval or 0.005}  # fmt: skip
@@ -244,10 +263,11 @@ def main() -> None:
             if args.switch_interval is not None:
                 sys.setswitchinterval(args.switch_interval)
             log_path = Path(tempfile.mkdtemp(prefix="deploy_timing_")) / "loop.npz"
+            live = live_view(ref, spec, log_path.parent / "live.rrd") if args.view else None
             try:
                 with busy_core():
                     res = deploy(ref, spec, timing_opts, LoopConfig(episodes=args.timing_episodes),
-                                 log_path=log_path)  # fmt: skip
+                                 log_path=log_path, live=live)  # fmt: skip
             except Exception as exc:  # a stop is a result too (a watchdog trip, a lost reply)
                 emit("timing_busy_core_failed", str(exc).splitlines()[0], "", policy=ref,
                      variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
@@ -255,7 +275,11 @@ def main() -> None:
                 continue
             finally:
                 sys.setswitchinterval(before)
-            s = res.summary()
+                if live is not None:
+                    live.close()
+                    emit("timing_busy_core_live_view", {"drawn": live.drawn,
+                         "dropped": live.dropped}, "periods", policy=ref, variant=variant)  # fmt: skip
+            s = res.summary().to_json()
             jitter = s["period_jitter_ms"]
             emit("timing_busy_core_loop_hz", round(s["loop_hz"], 3), "Hz", policy=ref, target=20,
                  variant=variant, machine=machine, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
@@ -273,8 +297,7 @@ def main() -> None:
                  variant=variant)  # fmt: skip
             emit("timing_busy_core_long_periods", breakdown(log_path, 1.0 / res.rate_hz), "",
                  policy=ref, variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
-            log_path.unlink(missing_ok=True)
-            log_path.parent.rmdir()
+            shutil.rmtree(log_path.parent, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -137,7 +137,7 @@ def deploy(backend: str, episodes: int, policy: str) -> None:
     t0 = time.perf_counter()
     res = run_policy(truth, io, spec, DeployOptions(backend=backend),
                      LoopConfig(episodes=episodes, placements=placements))  # fmt: skip
-    s = res.summary()
+    s = res.summary().to_json()
     wins = res.successes
     lo, hi = wilson_interval(wins, episodes)
     emit(

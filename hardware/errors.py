@@ -45,3 +45,8 @@ class NotConnectedError(HardwareError):
 
 class CalibrationFileError(HardwareError):
     """A joint-calibration YAML is missing, corrupt, or does not fit the spec."""
+
+
+class StallError(HardwareError):
+    """A measured joint stopped following its command for longer than the servo model allows:
+    the arm was held, then parked slowly (or, where it could not move, its torque cut)."""

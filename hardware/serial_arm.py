@@ -157,11 +157,15 @@ class SerialArm(ArmBase):
             vel = cal.direction * us.velocities / cal.scale_units_per_rad
         if us.loads is not None:
             loads = cal.direction * us.loads
+        measured = us.measured
+        if measured is None:  # a protocol that does not say: only its commands are known
+            measured = np.zeros(self.spec.n_actuators, dtype=bool)
         return ArmState(
             positions_rad=cal.from_units(us.positions),
             timestamp_s=us.timestamp_s,
             velocities_rad_s=vel,
             loads=loads,
+            measured=measured,
         )
 
     def _read_state(self) -> ArmState:
@@ -201,12 +205,16 @@ class SerialArm(ArmBase):
 
     def _reference(self, state: ArmState) -> np.ndarray:
         """Start the step clamp from the device's own targets where it reports them (so host
-        and firmware clamp around the same point), else from the measured position."""
+        and firmware clamp around the same point), else from the measured position, or for a
+        servo without feedback from the last target sent. ``enable`` hands this to the device as
+        the pose to switch on at, so nothing snaps."""
         us = self._last_unit_state
         if us is not None and us.targets is not None and us.torque_on:
             u = np.clip(us.targets, self.lower_units, self.upper_units)
         else:
-            u = self._quantise(state.positions_rad)
+            # torque off: a measured servo from where it is; one that reads its command from
+            # where this host last sent it (after a reboot the device only knows park)
+            u = np.where(state.measured_mask, self._quantise(state.positions_rad), self._last_units)
         self._last_units = u.astype(np.int64)
         return self.calibration.from_units(self._last_units)
 

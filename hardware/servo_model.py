@@ -154,6 +154,13 @@ class ServoBank:
         # Set by ``attach_body``: where an outside body (the mock world's physics) holds the horns.
         self.body_rad: np.ndarray | None = None
         self.body_vel_rad_s = np.zeros_like(self.pos)
+        # Jammed servos (a stripped gear wedged, a cable caught): the horn stays where it is
+        # whatever the command, and the motor pushes against it (full effort).
+        self.jammed = np.zeros(self.pos.shape, dtype=bool)
+
+    def jam(self, mask: np.ndarray) -> None:
+        """From now on the servos in ``mask`` (n,) bool do not move; ``jam(zeros)`` frees them."""
+        self.jammed = np.asarray(mask, dtype=bool).copy()
 
     def attach_body(self) -> None:
         """From now on an outside body moves the horns: the mock world's MuJoCo arm, whose
@@ -224,9 +231,11 @@ class ServoBank:
             self.p.deadband_rad,
             on,
         )
+        move = np.where(self.jammed, 0.0, move)
         self.pos = self.pos + move
         self.vel = move / dt_s
         self.effort = np.where(on, np.clip(err / 0.2, -1.0, 1.0), 0.0)
+        self.effort = np.where(on & self.jammed & (np.abs(err) > 0), np.sign(err), self.effort)
 
     def reading_rad(self) -> np.ndarray:
         """What the servo's sensor reports: quantised, with noise."""
@@ -289,3 +298,40 @@ class StepServo:
             out = np.rint(out * self.per_quantum) * self.quantum_rad
         self.applied_rad = out
         return out
+
+
+def arrival_time_s(
+    spec: ArmSpec,
+    start_rad: np.ndarray,
+    goal_rad: np.ndarray,
+    tolerance_rad: float,
+    command_speed_rad_s: float | None = None,
+    dt_s: float = 0.001,
+    max_s: float = 30.0,
+) -> np.ndarray:
+    """How long (n_actuators,) after a move's first command a healthy servo of ``spec`` sits
+    within ``tolerance_rad`` of ``goal_rad``, from rest at ``start_rad``: the command slewed at
+    the servo's speed (as the arm3 firmware slews its output), then the latency, the lag, the
+    rate limit and the dead band of the one servo model. What the host waits for a joint whose
+    reading is its own command (``feedback: commanded``): it cannot see the horn arrive. A host
+    that ramps its commands slower passes ``command_speed_rad_s``."""
+    params = ServoParams.from_spec(spec)
+    start = np.asarray(start_rad, dtype=float)
+    goal = np.asarray(goal_rad, dtype=float)
+    vmax = params.max_speed_rad_s
+    vcmd = vmax if command_speed_rad_s is None else np.minimum(vmax, command_speed_rad_s)
+    cmd = start.copy()
+    pos = start.copy()
+    done = np.abs(goal - pos) <= tolerance_rad
+    out = np.zeros_like(pos)
+    steps = int(max_s / dt_s)
+    for k in range(1, steps + 1):
+        if done.all():
+            break
+        cmd = cmd + np.clip(goal - cmd, -vcmd * dt_s, vcmd * dt_s)
+        pos = pos + lag_step(pos, cmd, dt_s, params.time_constant_s, vmax, params.deadband_rad)
+        now = (np.abs(goal - pos) <= tolerance_rad) & (cmd == goal) & ~done
+        out[now] = k * dt_s
+        done |= now
+    out[~done] = max_s
+    return out + spec.servo.latency_s

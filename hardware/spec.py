@@ -22,6 +22,18 @@ from hardware import yamlio
 from hardware.errors import SpecError
 
 DEFAULT_SPEC_PATH = Path(__file__).with_name("specs") / "arm3_mg996r.yaml"
+# The default hobby build: bare PWM servos, whose readings are the commanded pulses.
+PWM_SPEC_PATH = Path(__file__).with_name("specs") / "arm3_mg996r_pwm.yaml"
+
+# What an actuator's position reading is. A policy trained on one kind and run on the other sees
+# something else than it learned from, and the host can only judge arrival and stalls from a
+# reading that can disagree with the command.
+FEEDBACK_KINDS: dict[str, str] = {
+    "measured": "a sensor on the horn: a bus servo's encoder, or a PWM servo's potentiometer "
+    "wired to an analog input",
+    "commanded": "the pulse the servo was last sent (slewed): a bare PWM servo tells nothing back",
+}
+DEFAULT_FEEDBACK = "measured"  # today's specs, and so their fingerprints, say nothing else
 
 # Topology: allowed axes per joint slot (sign flips allowed, the geometry is fixed).
 _TOPOLOGY_AXES: tuple[frozenset[str], ...] = (
@@ -54,6 +66,14 @@ def _positive(name: str, value: float) -> float:
     if out <= 0:
         raise SpecError(f"{name} must be > 0, got {value!r}")
     return out
+
+
+def _feedback(where: str, value: Any) -> str:
+    if value not in FEEDBACK_KINDS:
+        raise SpecError(
+            f"{where}: feedback {value!r} is not one of {', '.join(sorted(FEEDBACK_KINDS))}"
+        )
+    return str(value)
 
 
 def _non_negative(name: str, value: float) -> float:
@@ -112,6 +132,7 @@ class JointSpec:
     home_rad: float = 0.0
     park_rad: float = 0.0
     servo_id: int = 0
+    feedback: str = DEFAULT_FEEDBACK  # what its reading is: a key of FEEDBACK_KINDS
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").isalnum():
@@ -133,6 +154,7 @@ class JointSpec:
                 raise SpecError(f"joint {self.name}: {key} ({v}) is outside [{lo}, {hi}]")
         if not isinstance(self.servo_id, int) or not 0 <= self.servo_id <= 253:
             raise SpecError(f"joint {self.name}: servo_id {self.servo_id!r} is not in 0..253")
+        _feedback(f"joint {self.name}", self.feedback)
 
     @property
     def axis_vector(self) -> tuple[float, float, float]:
@@ -171,8 +193,10 @@ class GripperSpec:
     max_gap_m: float = 0.05  # finger gap at open_rad
     max_force_n: float = 12.0  # MG90S-class, 2 cm lever
     max_speed_rad_s: float = 10.0
+    feedback: str = DEFAULT_FEEDBACK  # a gripper that reads its command cannot feel a cube
 
     def __post_init__(self) -> None:
+        _feedback("gripper", self.feedback)
         lo = _finite("gripper.closed_rad", self.closed_rad)
         hi = _finite("gripper.open_rad", self.open_rad)
         if lo == hi:
@@ -357,10 +381,21 @@ class ArmSpec:
         extra = [self.gripper.closed_rad] if self.gripper else []
         return np.array([j.park_rad for j in self.joints] + extra)
 
+    @property
+    def actuator_feedback(self) -> tuple[str, ...]:  # (n_actuators,) keys of FEEDBACK_KINDS
+        extra = (self.gripper.feedback,) if self.gripper else ()
+        return tuple(j.feedback for j in self.joints) + extra
+
+    @property
+    def actuator_measured(self) -> np.ndarray:  # (n_actuators,) bool: the reading is measured
+        return np.array([k == "measured" for k in self.actuator_feedback], dtype=bool)
+
     def fingerprint(self) -> str:
         """A short hash of everything that changes behaviour: run dirs record it. The workspace
         is left out: it is safety configuration that a policy never saw in training, and run
-        dirs written before it existed must keep their fingerprint."""
+        dirs written before it existed must keep their fingerprint. Feedback kinds count only
+        where one is not the default (``to_dict`` leaves measured ones out): a policy trained
+        on commanded readings must not load for an arm that measures, and vice versa."""
         import hashlib
 
         d = self.to_dict()
@@ -457,8 +492,12 @@ class ArmSpec:
 
     # ---- io -------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
+        """Every field, except a feedback kind that is the default: files and fingerprints
+        written before feedback kinds existed stay as they were."""
         d = asdict(self)
-        d["joints"] = [asdict(j) for j in self.joints]
+        d["joints"] = [_without_default_feedback(asdict(j)) for j in self.joints]
+        if d["gripper"] is not None:
+            d["gripper"] = _without_default_feedback(d["gripper"])
         return d
 
     @classmethod
@@ -500,9 +539,29 @@ class ArmSpec:
     def to_yaml(self, path: str | Path, header: str = "") -> None:
         yamlio.dump(path, self.to_dict(), header=header or f"ArmSpec {self.name}")
 
+    def with_feedback(self, kinds: str | dict[str, str]) -> ArmSpec:
+        """A copy whose actuators read ``kinds``: one kind for all, or {actuator name: kind}."""
+        given = dict.fromkeys(self.actuator_names, kinds) if isinstance(kinds, str) else dict(kinds)
+        unknown = sorted(set(given) - set(self.actuator_names))
+        if unknown:
+            raise SpecError(
+                f"feedback names actuator(s) {unknown}; valid: {list(self.actuator_names)}"
+            )
+        joints = tuple(replace(j, feedback=given.get(j.name, j.feedback)) for j in self.joints)
+        gripper = self.gripper
+        if gripper is not None:
+            gripper = replace(gripper, feedback=given.get(gripper.name, gripper.feedback))
+        return replace(self, joints=joints, gripper=gripper)
+
     def with_servo(self, **changes: float) -> ArmSpec:
         """A copy with servo-model fields replaced (sysid writes its fit this way)."""
         return replace(self, servo=replace(self.servo, **changes))  # type: ignore[arg-type]
+
+
+def _without_default_feedback(d: dict[str, Any]) -> dict[str, Any]:
+    if d.get("feedback") == DEFAULT_FEEDBACK:
+        del d["feedback"]
+    return d
 
 
 def _build(cls: Any, raw: Any, where: str) -> Any:

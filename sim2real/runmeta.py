@@ -18,15 +18,25 @@ import json
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sim2real.errors import Sim2RealError, UnknownNameError
+
+if TYPE_CHECKING:
+    from hardware.spec import ArmSpec
 
 FORMAT = 2  # the format this version writes
 OPTIONAL_FIELDS: frozenset[str] = frozenset(
     {"exported_from", "export_format", "note", "adapted_from", "obs_key_shapes"}
 )
 READABLE_FORMATS: tuple[int, ...] = (1, 2)
+# A spec record leaves a measured reading's kind out (``hardware.spec.DEFAULT_FEEDBACK``).
+DEFAULT_READING = "measured"
+# What each reading kind is, for a refusal (``hardware.spec.FEEDBACK_KINDS``, in brief).
+READING_NOTES: dict[str, str] = {
+    "measured": "a sensor on the horn: an encoder or a potentiometer",
+    "commanded": "the pulse each servo was sent: bare PWM servos",
+}
 
 
 class MetaError(Sim2RealError):
@@ -121,13 +131,68 @@ class RunMeta:
     def layout_sizes(self) -> list[tuple[str, int]]:
         return [(f.name, f.size) for f in self.obs_layout]
 
-    def check_spec(self, fingerprint: str) -> None:
-        """Refuse an arm whose spec differs from the one the policy was trained for."""
-        if fingerprint != self.spec_fingerprint:
-            raise PolicyError(
-                f"policy {self.source!r} was trained for arm spec {self.spec_name!r} "
-                f"(fingerprint {self.spec_fingerprint}), not for fingerprint {fingerprint}"
-            )
+    def reading_kinds(self) -> dict[str, str] | None:
+        """Actuator name → the reading kind the policy was trained on (``measured`` or
+        ``commanded``), from its spec record; None where the record holds no spec."""
+        joints = self.spec.get("joints")
+        if not isinstance(joints, list | tuple) or not joints:
+            return None
+        actuators = [*joints, *([self.spec["gripper"]] if self.spec.get("gripper") else [])]
+        try:
+            return {str(a["name"]): str(a.get("feedback", DEFAULT_READING)) for a in actuators}
+        except (TypeError, KeyError, AttributeError):
+            return None
+
+    def check_spec(self, spec: ArmSpec | str) -> None:
+        """Refuse an arm whose spec (or fingerprint) differs from the one the policy was trained
+        for. Given the spec, a difference in reading kinds is said first, in one line: a policy
+        trained on measured readings would run on echoes of its commands (or the reverse)."""
+        fingerprint = spec if isinstance(spec, str) else spec.fingerprint()
+        if fingerprint == self.spec_fingerprint:
+            return
+        why = "" if isinstance(spec, str) else self._readings_refusal(spec, fingerprint)
+        raise PolicyError(
+            why
+            or f"policy {self.source!r} was trained for arm spec {self.spec_name!r} "
+            f"(fingerprint {self.spec_fingerprint}), not for fingerprint {fingerprint}"
+        )
+
+    def _readings_refusal(self, spec: ArmSpec, fingerprint: str) -> str:
+        """Why ``spec`` is refused when its reading kinds differ from the trained ones ("" when
+        they agree, or the record cannot tell)."""
+        trained = self.reading_kinds()
+        arm = dict(zip(spec.actuator_names, spec.actuator_feedback, strict=True))
+        if trained is None or set(trained) != set(arm):
+            return ""
+        differ: dict[str, list[str]] = {}
+        for name, kind in arm.items():
+            if kind != trained[name]:
+                differ.setdefault(kind, []).append(name)
+        if not differ:
+            return ""
+        kinds = set(trained.values())
+        was = (
+            f"{kinds.pop()} joint readings"
+            if len(kinds) == 1
+            else "readings " + ", ".join(f"{n} {k}" for n, k in trained.items())
+        )
+        reads = "; ".join(
+            f"{', '.join(names)} {kind} ({READING_NOTES.get(kind, kind)})"
+            for kind, names in differ.items()
+        )
+        # the same arm but for its readings (and its name)?
+        as_trained = replace(spec.with_feedback(trained), name=self.spec_name)
+        more = (
+            ""
+            if as_trained.fingerprint() == self.spec_fingerprint
+            else f" (the spec differs in more than its readings: trained for fingerprint "
+            f"{self.spec_fingerprint}, this is {fingerprint})"
+        )
+        return (
+            f"policy {self.source!r} was trained on {was}; this arm's spec {spec.name!r} reads "
+            f"{reads}: train on its spec (sim2real train --spec <its yaml>), or deploy a policy "
+            f"trained on these readings{more}"
+        )
 
     def check_layout(self, names_sizes: list[tuple[str, int]]) -> None:
         """Refuse an observation layout other than the policy's: same size is not same meaning."""

@@ -9,7 +9,10 @@ and the deploy code use: a context manager, ``.port``, ``.spec``, ``true_positio
   time, bridges UART0 to its own pty and reports, in simulated microseconds, every pulse each
   servo pin produced and every byte the UART received and sent;
 * this module turns pulses into servo targets (through the true mounting) and integrates the
-  servo dynamics (``ServoBank``) between events, so the horns move as the measured pulses say.
+  servo dynamics (``ServoBank``) between events, so the horns move as the measured pulses say;
+* for a pot build (actuators with ``feedback: measured``) it sets each potentiometer's wiper
+  voltage on its analog input from where the horn is, every 10 ms of chip time, so the firmware
+  reads the horn with the chip's own ADC.
 
 The ``applied()`` log is rebuilt from the UART traffic: a SET_TARGETS request and the firmware's
 STATE reply (which carries its targets after its own clamps) make one "targets" entry, as the
@@ -19,6 +22,7 @@ Python model logs them; a retransmission the firmware answered without applying 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import subprocess
 import threading
@@ -36,13 +40,23 @@ from hardware.emulator.lifecycle import PtyDevice
 from hardware.emulator.server import EmulatorConfig
 from hardware.errors import HardwareError
 from hardware.firmware import avr
-from hardware.firmware.limits import UNO_PWM_PINS
+from hardware.firmware.limits import ADC_MAX_COUNTS, NO_POT, UNO_PWM_PINS, firmware_limits
 from hardware.joint_calibration import ArmCalibration, nominal_calibration
 from hardware.protocols import s2r
 from hardware.protocols.s2r import S2RFrame, S2RFramer, S2RProtocol
 from hardware.spec import ArmSpec, load_spec
 
 SETTLE_S = 0.05  # a pulse train stops being seen as "on" 25 ms after its last pulse, at worst 45
+VREF_MV = 5000  # the harness's ADC reference (an Uno's 5 V)
+
+
+def counts_to_mv(counts: int) -> int:
+    """The wiper voltage (mV) the chip's ADC reads as ``counts`` (simavr: mv * 1023 // 5000)."""
+    return math.ceil(counts * VREF_MV / ADC_MAX_COUNTS)
+
+
+def mv_to_counts(mv: int) -> int:
+    return mv * ADC_MAX_COUNTS // VREF_MV
 
 
 class AvrEmulator(BodyCoupling, PtyDevice):
@@ -98,6 +112,13 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         self._pulse_us = np.array(park, dtype=float)
         self._powered = np.zeros(n, dtype=bool)
         self._lock = threading.RLock()
+        self._stdin_lock = threading.Lock()
+        self.limits = firmware_limits(self.spec)  # what the build compiles in (its pot map)
+        self._pots = [i for i in range(n) if self.limits.pot_channel[i] != NO_POT]
+        self._pot_mv: dict[int, int] = {}  # actuator -> the wiper voltage set last
+        self._pinned: set[int] = set()  # pots a test holds still (``set_pot_counts``)
+        # every wiper change as the chip saw it: (simulated s, actuator, ADC counts)
+        self.adc_log: list[tuple[float, int, int]] = []
         self._log: list[AppliedCommand] = []
         self._rx = S2RFramer(gap_s=0.5)
         self._tx = S2RFramer(gap_s=0.5)
@@ -126,8 +147,12 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         result = avr.build(self.spec, self._build_dir)
         pins = [str(UNO_PWM_PINS[sid]) for sid in self.spec.actuator_ids]
         boot_id = (self.config.seed * 7919 + 1) & 0xFFFF or 1
+        with self._lock:
+            initial = self._pot_commands()
+        adc = ",".join(f"{self.limits.pot_channel[i]}={mv}" for i, mv in initial)
         self._proc = subprocess.Popen(
-            [str(result.harness), str(result.elf), ",".join(pins), str(boot_id)],
+            [str(result.harness), str(result.elf), ",".join(pins), str(boot_id)]
+            + ([adc] if adc else []),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -163,7 +188,7 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         self._running = False
         proc = self._proc
         if proc is not None and proc.poll() is None and proc.stdin is not None:
-            with contextlib.suppress(OSError, ValueError):
+            with self._stdin_lock, contextlib.suppress(OSError, ValueError):
                 proc.stdin.write("Q\n")
                 proc.stdin.close()
         self._kill()
@@ -228,6 +253,12 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         elif kind == "T":
             self._advance(int(parts[1]) * 1e-6)
             self.min_sp = int(parts[2])
+            self._send_pots(self._pot_commands())
+        elif kind == "ADC" and len(parts) == 4:
+            ch, mv = int(parts[2]), int(parts[3])
+            for i in self._pots:
+                if self.limits.pot_channel[i] == ch:
+                    self.adc_log.append((int(parts[1]) * 1e-6, i, mv_to_counts(mv)))
         elif kind == "RX" and len(parts) == 3:
             t_s = int(parts[1]) * 1e-6
             self._advance(t_s)
@@ -257,6 +288,44 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         elif kind == "CRASH":
             self.crashed = " ".join(parts[1:])
 
+    def _pot_commands(self) -> list[tuple[int, int]]:
+        """(actuator, mV) for each wiper that moved since it was last set (lock held)."""
+        if not self._pots:
+            return []
+        us = self.mounting.to_units_float(self.servos.reading_rad())
+        out = []
+        for i in self._pots:
+            if i in self._pinned:
+                continue
+            mv = counts_to_mv(self.limits.pot_counts(i, float(us[i])))
+            if self._pot_mv.get(i) != mv:
+                self._pot_mv[i] = mv
+                out.append((i, mv))
+        return out
+
+    def _send_pots(self, commands: list[tuple[int, int]]) -> None:
+        lines = "".join(f"A {self.limits.pot_channel[i]} {mv}\n" for i, mv in commands)
+        proc = self._proc
+        if lines and proc is not None and proc.stdin is not None:
+            with self._stdin_lock, contextlib.suppress(OSError, ValueError):
+                proc.stdin.write(lines)
+                proc.stdin.flush()
+
+    def set_pot_counts(self, name: str, counts: int | None) -> None:
+        """Hold actuator ``name``'s wiper at the voltage the ADC reads as ``counts`` (a test's
+        fixed input), or give it back to the horn (None)."""
+        i = self.spec.actuator_names.index(name)
+        if i not in self._pots:
+            raise HardwareError(f"{name} has no potentiometer in this build (feedback: commanded)")
+        with self._lock:
+            if counts is None:
+                self._pinned.discard(i)
+                self._pot_mv.pop(i, None)
+                return
+            self._pinned.add(i)
+            self._pot_mv[i] = counts_to_mv(int(counts))
+        self._send_pots([(i, counts_to_mv(int(counts)))])
+
     def _on_reply(self, reply: S2RFrame, t_s: float) -> None:
         found = self._requests.get(reply.seq)
         if found is None:
@@ -272,7 +341,7 @@ class AvrEmulator(BodyCoupling, PtyDevice):
                 AppliedCommand(t_s, "targets", ids, tuple(requested), state.targets, reply.seq)
             )
         elif request.type == s2r.TORQUE:
-            v = request.payload[0]
+            v = 1 if request.payload[0] == 1 else 0
             self._log.append(AppliedCommand(t_s, "torque", (v,), (v,), (v,), reply.seq))
 
     # ---- observation (thread-safe) ----------------------------------------------------------
@@ -288,6 +357,11 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         """Which servos get pulses right now (n_actuators,) bool."""
         with self._lock:
             return self._powered.copy()
+
+    def device_targets_rad(self) -> np.ndarray:
+        """What the chip drives the servos towards right now (its latest pulses), in rad."""
+        with self._lock:
+            return self.mounting.from_units(self._pulse_us)
 
     def pulse_widths_us(self) -> np.ndarray:
         """The latest measured pulse width per servo, rounded to whole µs."""
@@ -310,8 +384,11 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         proc = self._proc
         if proc is None or proc.stdin is None:
             raise HardwareError("the AVR emulator is not running")
-        proc.stdin.write("B\n")
-        proc.stdin.flush()
+        with self._stdin_lock:
+            proc.stdin.write("B\n")
+            proc.stdin.flush()
+        with self._lock:
+            self._pot_mv.clear()  # the harness keeps its inputs; the next beat refreshes them
 
     def stats(self) -> dict[str, float]:
         with self._lock:

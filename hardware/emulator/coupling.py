@@ -13,14 +13,29 @@ import threading
 
 import numpy as np
 
+from hardware.errors import HardwareError
 from hardware.servo_model import ServoBank
+from hardware.spec import ArmSpec
 
 
 class BodyCoupling:
     """Thread-safe access to the servos for a body that moves them; emulators mix it in."""
 
     servos: ServoBank
+    spec: ArmSpec
     _lock: threading.RLock
+
+    def jam(self, *names: str) -> None:
+        """Jam the named actuators where their horns are now (the mock can jam a servo): they
+        stop moving whatever they are told, and push against the jam while powered. ``jam()``
+        with no names frees every servo."""
+        valid = self.spec.actuator_names
+        unknown = [n for n in names if n not in valid]
+        if unknown:
+            raise HardwareError(f"cannot jam {unknown}: valid actuators are {list(valid)}")
+        with self._lock:
+            self._catch_up()
+            self.servos.jam(np.array([n in names for n in valid], dtype=bool))
 
     def _catch_up(self) -> None:
         """Integrate the servos up to now before anyone looks (lock held). Default: the

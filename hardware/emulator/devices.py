@@ -17,7 +17,7 @@ import numpy as np
 
 from hardware.emulator.dynamics import ServoBank
 from hardware.emulator.firmware import AppliedCommand, FirmwareCore
-from hardware.firmware.limits import firmware_limits
+from hardware.firmware.limits import NO_POT, firmware_limits
 from hardware.joint_calibration import ArmCalibration
 from hardware.protocols import feetech as ft
 from hardware.protocols import maestro as ms
@@ -87,7 +87,10 @@ class EmulatedDevice(ABC):
 
 # ---- s2r: our firmware --------------------------------------------------------------------------
 class S2RDevice(EmulatedDevice):
-    """The arm3 firmware model driving PWM servos with feedback pots (positions are measured)."""
+    """The arm3 firmware model in the build the spec asks for, as the sketch would be generated
+    from it: actuators with ``feedback: measured`` have their potentiometer wired to an analog
+    input (the hobby mod) and report where the horn is; the others are bare PWM servos and report
+    the pulse they were sent (commanded), whatever the horn does."""
 
     protocol = "s2r"
 
@@ -95,20 +98,25 @@ class S2RDevice(EmulatedDevice):
         super().__init__(*args, **kwargs)
         flashed = self.options.get("flashed_calibration")
         self.limits = firmware_limits(self.spec, flashed)
+        self._pots = [i for i in range(self.n) if self.limits.pot_channel[i] != NO_POT]
         self._boot(self.boot_id, self.start_s)
 
     def _boot(self, boot_id: int, now_s: float) -> None:
-        self.core = FirmwareCore(
-            self.limits,
-            boot_id,
-            now_ms=int(now_s * 1000),
-            feedback=lambda: [int(v) for v in self.reading_units()],
-            on_log=self.log,
-        )
+        self.core = FirmwareCore(self.limits, boot_id, now_ms=int(now_s * 1000), on_log=self.log)
+        self._sample_pots()
+
+    def _sample_pots(self) -> None:
+        """The ADC counts each wired pot reads now (the horn through the true mounting)."""
+        if not self._pots:
+            return
+        us = self.mounting.to_units_float(self.servos.reading_rad())
+        for i in self._pots:
+            self.core.set_pot(i, self.limits.pot_counts(i, float(us[i])))
 
     def receive(self, data: bytes, now_s: float) -> list[bytes]:
         now_ms = int(now_s * 1000)
         self.core.tick(now_ms)
+        self._sample_pots()
         return self.core.feed(data, now_ms)
 
     def tick(self, now_s: float) -> None:

@@ -1,7 +1,8 @@
 """A line-by-line Python model of the arm3 firmware core (firmware/arm3/src/arm3_core.cpp).
 
 Same framer, same limits, same per-frame step clamp, same integer slew-rate limiter, same
-watchdog (hold, then detach), same duplicate detection. tests/hardware/test_firmware.py feeds
+watchdog (hold, then detach), same duplicate detection, same potentiometer map (ADC counts to µs,
+for the actuators the build wires a pot to) and the same attach without a snap. tests/hardware/test_firmware.py feeds
 identical byte streams and clock ticks to this model and to the compiled C++ core and requires
 identical replies, outputs and counters. Times are integer milliseconds, as on the Arduino.
 """
@@ -11,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hardware.firmware.limits import FirmwareLimits
+from hardware.firmware.limits import NO_POT, FirmwareLimits
 from hardware.protocols import s2r
 from hardware.protocols.s2r import S2RFrame, S2RFramer
 
@@ -45,21 +46,22 @@ def _clamp(v: int, lo: int, hi: int) -> int:
 
 
 class FirmwareCore:
-    """The device side of protocol s2r. ``feedback`` (emulator only) returns measured positions
-    in µs; without it, like the real board without feedback pots, the outputs are reported."""
+    """The device side of protocol s2r. Actuators the build wires a potentiometer to
+    (``limits.pot_channel``) report it, mapped to µs, from the counts last given to ``set_pot``
+    (the sketch samples the ADC; the emulator computes the counts from the horn); the others
+    report their output pulse, as a board driving bare PWM servos can only do."""
 
     def __init__(
         self,
         limits: FirmwareLimits,
         boot_id: int,
         now_ms: int = 0,
-        feedback: Callable[[], list[int]] | None = None,
         on_log: Callable[[AppliedCommand], None] | None = None,
     ) -> None:
         self.limits = limits
         self.n = limits.n
         self.boot_id = boot_id & 0xFFFF
-        self._feedback = feedback
+        self.pot = [0] * self.n  # ADC counts; survive begin() as the sketch's samples do
         self._on_log = on_log
         self.framer = S2RFramer(gap_s=s2r.GAP_MS / 1000.0)
         self.stats = FirmwareStats()
@@ -163,15 +165,15 @@ class FirmwareCore:
                 self._log(now_ms, "limits", tuple(lo) + tuple(hi), tuple(st), f.seq)
             return s2r.encode_frame(f.seq, reply_type)
         if t == s2r.TORQUE:
-            if len(p) != 1:
+            if len(p) not in (1, 1 + 2 * n):
                 return self._error(f.seq, s2r.ERR_BAD_LENGTH, t)
-            if p[0] > 1:
+            if p[0] > 1 or (len(p) > 1 and p[0] != 1):
                 return self._error(f.seq, s2r.ERR_BAD_VALUE, t)
             if not dup:
-                self.attached = p[0] == 1
-                if self.attached:
-                    self.target = list(self.output)
-                    self.carry = [0] * n
+                if p[0] == 1:
+                    self._attach(s2r.decode_targets(p[1:]) if len(p) > 1 else None)
+                else:
+                    self.attached = False
                 self._log(now_ms, "torque", (p[0],), (1 if self.attached else 0,), f.seq)
             return s2r.encode_frame(f.seq, reply_type)
         if t == s2r.HEARTBEAT:
@@ -201,6 +203,33 @@ class FirmwareCore:
             self.stats.clamps += 1
         self._log(now_ms, "targets", tuple(req), tuple(self.target), seq)
 
+    def _attach(self, start_us: tuple[int, ...] | None) -> None:
+        """Torque on without a snap: a pot servo starts where it is, one without from the host's
+        start pulse (only when it was off) or its output; clamped to the limits."""
+        for i in range(self.n):
+            v = self.output[i]
+            if self.measured(i):
+                v = self.limits.pot_us(i, self.pot[i])
+            elif start_us is not None and not self.attached:
+                v = start_us[i]
+            self.output[i] = _clamp(v, self.lower[i], self.upper[i])
+            self.target[i] = self.output[i]
+            self.carry[i] = 0
+        self.attached = True
+
+    def set_pot(self, i: int, counts: int) -> None:
+        self.pot[i] = int(counts)
+
+    def measured(self, i: int) -> bool:
+        return self.limits.pot_channel[i] != NO_POT
+
+    def measured_mask(self) -> int:
+        return self.limits.measured_mask
+
+    def position(self, i: int) -> int:
+        """Actuator i's reading in µs: its pot, or its output pulse."""
+        return self.limits.pot_us(i, self.pot[i]) if self.measured(i) else self.output[i]
+
     def flags(self) -> int:
         return (
             (s2r.FLAG_TORQUE_ON if self.attached else 0)
@@ -210,10 +239,9 @@ class FirmwareCore:
         )
 
     def _state_payload(self) -> bytes:
-        positions = self._feedback() if self._feedback is not None else list(self.output)
-        positions = [_clamp(int(v), 0, 0xFFFF) for v in positions]
+        positions = tuple(self.position(i) for i in range(self.n))
         return s2r.StatePayload(
-            self.flags(), self.boot_id, tuple(positions), tuple(self.target)
+            self.flags(), self.boot_id, positions, tuple(self.target), self.measured_mask()
         ).encode()
 
     # ---- time -----------------------------------------------------------------------------

@@ -81,6 +81,9 @@ class UnitState:
     velocities: np.ndarray | None = None  # (n,) units/s, if reported
     loads: np.ndarray | None = None  # (n,) signed fraction of max torque, if reported
     torque_on: bool | None = None
+    # (n,) bool: the position is measured (a sensor on the horn), else it is the command the
+    # servo was sent. Every protocol says which: the host judges arrival and stalls from it.
+    measured: np.ndarray | None = None
 
 
 @dataclass

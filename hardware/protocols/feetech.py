@@ -364,6 +364,7 @@ class FeetechProtocol(Protocol):
             velocities=np.array(vel, dtype=float),
             loads=np.array(load, dtype=float),
             torque_on=all(tq == 1 for tq in torque),
+            measured=np.ones(self.n, dtype=bool),  # the servo's own encoder
         )
 
     def _write_goals(self, units: np.ndarray) -> None:

@@ -227,7 +227,12 @@ class MaestroProtocol(Protocol):
                 self._send_targets(self._last_targets)
         if np.any(off) and self.rest_units is not None:
             positions = np.where(off, self.rest_units, positions)
-        return UnitState(positions=positions, timestamp_s=t, torque_on=bool(not np.any(off)))
+        return UnitState(
+            positions=positions,
+            timestamp_s=t,
+            torque_on=bool(not np.any(off)),
+            measured=np.zeros(self.n, dtype=bool),  # its own output pulse: nothing is felt
+        )
 
     def _send_targets(self, units: np.ndarray) -> None:
         self.link.write(targets_packet(self.ids, units, self.crc))

@@ -34,8 +34,11 @@ SYNC = b"\xa5\x5a"
 MAX_PAYLOAD = 64
 HEADER_LEN = 6  # sync(2) len(1) ~len(1) seq(1) type(1)
 OVERHEAD = HEADER_LEN + 2  # + crc16
-PROTO_VERSION = 1
-FW_VERSION = (1, 0)
+# 2: STATE carries a readings byte (bit i: actuator i's position is measured), and TORQUE 1 may
+# carry the pulses to start servos without a potentiometer from. PONG kept its layout, so a host
+# of either version reads the other's version number and stops with one line.
+PROTO_VERSION = 2
+FW_VERSION = (1, 1)
 GAP_MS = 10  # device side: a partial frame older than this is abandoned
 HOST_GAP_S = 0.5  # host side: links over a network may pause mid-frame
 
@@ -209,21 +212,37 @@ class PongPayload:
 class StatePayload:
     flags: int
     boot_id: int
-    positions: tuple[int, ...]  # µs, measured (or the output pulse without feedback)
+    positions: tuple[int, ...]  # µs: the pot where bit i of ``measured`` is set, else the output
     targets: tuple[int, ...]  # µs, the firmware's current (clamped) targets
+    measured: int = 0  # bit i: actuator i's position is measured (a potentiometer)
 
     def encode(self) -> bytes:
         n = len(self.positions)
-        return struct.pack(f"<BH{n}H{n}H", self.flags, self.boot_id, *self.positions, *self.targets)
+        return struct.pack(
+            f"<BHB{n}H{n}H", self.flags, self.boot_id, self.measured, *self.positions, *self.targets
+        )
 
     @classmethod
     def decode(cls, payload: bytes, n: int) -> StatePayload:
-        if len(payload) != 3 + 4 * n:
+        if len(payload) != 4 + 4 * n:
             raise ProtocolError(
-                f"STATE payload has {len(payload)} bytes, expected {3 + 4 * n} for {n} actuators"
+                f"STATE payload has {len(payload)} bytes, expected {4 + 4 * n} for {n} actuators "
+                f"(protocol {PROTO_VERSION})"
             )
-        vals = struct.unpack(f"<BH{n}H{n}H", payload)
-        return cls(vals[0], vals[1], tuple(vals[2 : 2 + n]), tuple(vals[2 + n :]))
+        vals = struct.unpack(f"<BHB{n}H{n}H", payload)
+        return cls(vals[0], vals[1], tuple(vals[3 : 3 + n]), tuple(vals[3 + n :]), vals[2])
+
+    def measured_array(self) -> np.ndarray:
+        """(n,) bool: which positions are measured."""
+        return np.array([bool(self.measured >> i & 1) for i in range(len(self.positions))])
+
+
+def encode_torque(on: bool, start_units: np.ndarray | Sequence[int] | None = None) -> bytes:
+    """TORQUE payload: 0 or 1, and with 1 optionally the pulses (µs) to start the servos without a
+    potentiometer from (where the host last sent them), so torque-on does not snap them."""
+    if start_units is None or not on:
+        return bytes((1 if on else 0,))
+    return b"\x01" + encode_targets(start_units)
 
 
 def encode_targets(units: np.ndarray | Sequence[int]) -> bytes:
@@ -404,6 +423,7 @@ class S2RProtocol(Protocol):
             timestamp_s=time.monotonic(),
             targets=np.array(st.targets, dtype=np.int64),
             torque_on=bool(st.flags & FLAG_TORQUE_ON),
+            measured=st.measured_array(),
         )
 
     def _check_boot(self, boot_id: int) -> None:
@@ -449,8 +469,9 @@ class S2RProtocol(Protocol):
         return None
 
     def set_torque(self, on: bool, hold_units: np.ndarray | None = None) -> None:
-        """The firmware holds its current output pulse when torque comes on."""
-        self._request(TORQUE, bytes((1 if on else 0,)))
+        """Torque on: servos with a pot hold where they are (the firmware reads it), the others
+        start from ``hold_units`` (where this host last sent them) or their output pulse."""
+        self._request(TORQUE, encode_torque(on, hold_units))
 
     def heartbeat(self) -> None:
         self._request(HEARTBEAT)

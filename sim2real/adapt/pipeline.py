@@ -258,13 +258,12 @@ class Adapter:
                 raise DeployInterruptedError(f"deploy of {policy!r} interrupted; the arm is parked")
             raise ConfigError(f"deploy of {policy!r} stopped early: {result.stopped_early}")
         n, k = len(result.episodes), result.successes
-        summary = result.summary()
         return {
             "episodes": n,
             "successes": k,
             "success_rate": round(k / max(n, 1), 4),
             "success_wilson95": wilson(k, n),
-            "mean_final_distance_m": summary.get("mean_final_distance_m"),
+            "mean_final_distance_m": result.summary().mean_final_distance_m,
             "watchdog_trips": result.watchdog_trips,
         }
 
@@ -556,8 +555,9 @@ class Adapter:
         out = self.out / "policy.onnx"
         export_policy(self.out / "finetune", "onnx", out)  # written atomically (onnx_io)
         meta = load_policy(out).meta
-        fitted = self._fitted().fingerprint()
-        meta.check_spec(fitted)
+        fitted_spec = self._fitted()
+        meta.check_spec(fitted_spec)
+        fitted = fitted_spec.fingerprint()
         return {"policy": "policy.onnx", "bytes": out.stat().st_size, "fingerprint": fitted}
 
     def _stage_evaluate(self) -> dict[str, Any]:

@@ -130,12 +130,12 @@ def _deploy_mock(ctx: DemoContext) -> dict[str, Any]:
     s = result.summary()
     return {
         "policy": str(policy),
-        "episodes": s["episodes"],
-        "success_rate": s["success_rate"],
-        "mean_final_distance_mm": round(1000 * s["mean_final_distance_m"], 2),
-        "loop_hz": round(s["loop_hz"], 2),
-        "period_jitter_ms": {k: round(v, 2) for k, v in s["period_jitter_ms"].items()},
-        "sections_ms_p50": {k: round(v["p50"], 2) for k, v in s["sections_ms"].items()},
+        "episodes": s.episodes,
+        "success_rate": s.success_rate,
+        "mean_final_distance_mm": round(1000 * s.mean_final_distance_m, 2),
+        "loop_hz": round(s.loop_hz, 2),
+        "period_jitter_ms": {k: round(v, 2) for k, v in s.period_jitter_ms.to_json().items()},
+        "sections_ms_p50": {k: round(v.p50, 2) for k, v in s.sections_ms.items()},
         "log": str(ctx.out / "mock_deploy.npz"),
     }
 
@@ -159,15 +159,15 @@ def _pick_mock(ctx: DemoContext) -> dict[str, Any]:
         log_path=ctx.out / "mock_pick.npz",
     )
     s = result.summary()
-    figures = s["task_figures"]
+    figures = s.task_figures
     return {
         "policy": DEMO_PICK_POLICY,
-        "episodes": s["episodes"],
-        "success_rate": s["success_rate"],
+        "episodes": s.episodes,
+        "success_rate": s.success_rate,
         "grasped_rate": figures.get("grasped_ever_rate"),
         "mean_max_lift_mm": round(1000 * figures.get("mean_max_lift_m", 0.0), 1),
         "mean_cube_blind_max_s": figures.get("mean_cube_blind_max_s"),
-        "loop_hz": round(s["loop_hz"], 2),
+        "loop_hz": round(s.loop_hz, 2),
         "log": str(ctx.out / "mock_pick.npz"),
     }
 

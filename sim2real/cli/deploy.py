@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()  # drains what is queued, then the sink writes or flushes
-    summary = {"backend": opts.backend, **result.summary()}
+    summary = {"backend": opts.backend, **result.summary().to_json()}
     if args.json:
         print(json.dumps(summary))
     else:

@@ -77,9 +77,11 @@ def build_serial_fk(
 ) -> tuple[ArmBase, KinematicPerception, KinematicWorld]:
     """``--backend serial --perception fk``: the bus, and kinematics in place of cameras."""
     from hardware.serial_arm import SerialArm
+    from sim2real.deploy.runner import check_device_readings
 
     assert opts.port is not None  # DeployOptions checks it
     arm = SerialArm(spec, opts.port, opts.protocol, opts.baud, opts.joint_calibration)
     stack.enter_context(arm)
+    check_device_readings(arm, spec)
     world = KinematicWorld()
     return arm, KinematicPerception(spec, world), world

@@ -15,7 +15,7 @@ at the start of period k+1, and the last period on one more view, a period after
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -60,6 +60,72 @@ def _percentile_ms(values: list[float], q: float) -> float:
     return float(np.percentile(values, q) * 1e3) if values else float("nan")
 
 
+@dataclass(frozen=True)
+class Spread:
+    """A timing's spread in milliseconds (NaN where nothing was measured); ``max`` where kept."""
+
+    p50: float
+    p99: float
+    max: float | None = None
+
+    @classmethod
+    def of(cls, values_s: list[float], with_max: bool = True) -> Spread:
+        top = (float(max(values_s) * 1e3) if values_s else math.nan) if with_max else None
+        return cls(_percentile_ms(values_s, 50), _percentile_ms(values_s, 99), top)
+
+    def to_json(self) -> dict[str, float]:
+        out = {"p50": self.p50, "p99": self.p99}
+        return out if self.max is None else {**out, "max": self.max}
+
+
+@dataclass(frozen=True)
+class DeploySummary:
+    """A deployment's figures: what ``sim2real deploy`` prints (``to_json``, at the CLI edge
+    only) and what callers read by name."""
+
+    task: str
+    episodes: int
+    success_rate: float
+    mean_final_distance_m: float  # NaN: no episode ended with a finite distance
+    task_figures: Mapping[str, float]  # the task's own: ``<key>_rate`` or ``mean_<key>``
+    episode_stops: tuple[str, ...]  # why episodes ended early, one line each
+    loop_hz: float
+    period_jitter_ms: Spread
+    wake_late_ms: Spread
+    overruns: int
+    blind_periods: int
+    watchdog_trips: int
+    sections_ms: Mapping[str, Spread]  # each section of the period: p50, p99
+    safety: Mapping[str, int]
+    stopped_early: str | None
+
+    def __post_init__(self) -> None:
+        if self.episodes < 0 or not 0.0 <= self.success_rate <= 1.0:
+            raise ValueError(
+                f"deploy summary: {self.episodes} episodes at success rate {self.success_rate}"
+            )
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON ``sim2real deploy --json`` prints (its keys and their order are its format)."""
+        return {
+            "task": self.task,
+            "episodes": self.episodes,
+            "success_rate": self.success_rate,
+            "mean_final_distance_m": self.mean_final_distance_m,
+            "task_figures": dict(self.task_figures),
+            "episode_stops": list(self.episode_stops),
+            "loop_hz": self.loop_hz,
+            "period_jitter_ms": self.period_jitter_ms.to_json(),
+            "wake_late_ms": self.wake_late_ms.to_json(),
+            "overruns": self.overruns,
+            "blind_periods": self.blind_periods,
+            "watchdog_trips": self.watchdog_trips,
+            "sections_ms": {s: v.to_json() for s, v in self.sections_ms.items()},
+            "safety": dict(self.safety),
+            "stopped_early": self.stopped_early,
+        }
+
+
 @dataclass
 class DeployResult:
     task: str
@@ -81,50 +147,42 @@ class DeployResult:
     def successes(self) -> int:
         return sum(e.success for e in self.episodes)
 
-    def summary(self) -> dict[str, Any]:
-        n = max(len(self.episodes), 1)
-        periods = np.asarray(self.periods_s)
-        nominal = 1.0 / self.rate_hz
-        jitter = np.abs(periods - nominal) if len(periods) else np.zeros(0)
-        task_figures: dict[str, Any] = {}
+    def _task_figures(self) -> dict[str, float]:
+        """Each of the task's figures over the episodes: a flag's rate, a value's finite mean."""
+        figures: dict[str, float] = {}
         for key in self.episodes[0].figures if self.episodes else ():
             values = [e.figures[key] for e in self.episodes if key in e.figures]
             if all(isinstance(v, bool | np.bool_) for v in values):
-                task_figures[f"{key}_rate"] = float(np.mean(values))
+                figures[f"{key}_rate"] = float(np.mean(values))
             else:
                 finite = [float(v) for v in values if math.isfinite(float(v))]
-                task_figures[f"mean_{key}"] = float(np.mean(finite)) if finite else math.nan
-        reasons = [e.reason for e in self.episodes if e.reason]
-        return {
-            "task": self.task,
-            "episodes": len(self.episodes),
-            "success_rate": self.successes / n,
-            "mean_final_distance_m": float(np.nanmean([e.distance_m for e in self.episodes]))
-            if self.episodes and any(math.isfinite(e.distance_m) for e in self.episodes)
+                figures[f"mean_{key}"] = float(np.mean(finite)) if finite else math.nan
+        return figures
+
+    def summary(self) -> DeploySummary:
+        n = max(len(self.episodes), 1)
+        periods = np.asarray(self.periods_s)
+        jitter = np.abs(periods - 1.0 / self.rate_hz) if len(periods) else np.zeros(0)
+        distances = [e.distance_m for e in self.episodes]
+        return DeploySummary(
+            task=self.task,
+            episodes=len(self.episodes),
+            success_rate=self.successes / n,
+            mean_final_distance_m=float(np.nanmean(distances))
+            if any(math.isfinite(d) for d in distances)
             else math.nan,
-            "task_figures": task_figures,
-            "episode_stops": reasons,
-            "loop_hz": float(1.0 / periods.mean()) if len(periods) else math.nan,
-            "period_jitter_ms": {
-                "p50": _percentile_ms(list(jitter), 50),
-                "p99": _percentile_ms(list(jitter), 99),
-                "max": float(jitter.max() * 1e3) if len(jitter) else math.nan,
-            },
-            "wake_late_ms": {
-                "p50": _percentile_ms(self.wake_late_s, 50),
-                "p99": _percentile_ms(self.wake_late_s, 99),
-                "max": float(max(self.wake_late_s) * 1e3) if self.wake_late_s else math.nan,
-            },
-            "overruns": self.overruns,
-            "blind_periods": self.blind_periods,
-            "watchdog_trips": self.watchdog_trips,
-            "sections_ms": {
-                s: {"p50": _percentile_ms(v, 50), "p99": _percentile_ms(v, 99)}
-                for s, v in self.sections_s.items()
-            },
-            "safety": self.safety_stats,
-            "stopped_early": self.stopped_early,
-        }
+            task_figures=self._task_figures(),
+            episode_stops=tuple(e.reason for e in self.episodes if e.reason),
+            loop_hz=float(1.0 / periods.mean()) if len(periods) else math.nan,
+            period_jitter_ms=Spread.of(list(jitter)),
+            wake_late_ms=Spread.of(self.wake_late_s),
+            overruns=self.overruns,
+            blind_periods=self.blind_periods,
+            watchdog_trips=self.watchdog_trips,
+            sections_ms={s: Spread.of(v, with_max=False) for s, v in self.sections_s.items()},
+            safety=self.safety_stats,
+            stopped_early=self.stopped_early,
+        )
 
 
 class DeployLoop:

@@ -12,28 +12,19 @@ Why a process: in the host, the emulator and physics threads shared the control 
 woke it late. Here they cannot hold its GIL, and they run at a lower priority than the host's
 loop (``nice``, or real-time below the loop's where the loop has it), as the render process does.
 
-Lifecycle: ``MockArmProcess`` is a ``PtyDevice`` (a context manager; ``port`` is the pty). The
-child is stopped over the channel and killed if it does not exit; it exits by itself when the
-host dies (the channel's socket closes under it). A child that dies while the host runs makes
-every later call, ``truth()`` and the backend's exit raise one line naming how it died.
+Lifecycle (``child.ChildProcess``): ``MockArmProcess`` is a ``PtyDevice`` (a context manager;
+``port`` is the pty). The child is stopped over the channel and killed if it does not exit; it
+dies with the host. A child that dies while the host runs makes every later call, ``truth()``
+and the backend's exit raise one line naming how it died.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
-import signal
-import socket
-import subprocess
 import sys
-import tempfile
-import threading
-import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from multiprocessing import shared_memory
-from multiprocessing.connection import Connection
-from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -42,8 +33,18 @@ from hardware.emulator.lifecycle import PtyDevice
 from hardware.emulator.server import EmulatorConfig
 from hardware.errors import HardwareError
 from hardware.plant import Plant
-from sim2real.deploy.child import child_env, death_line, one_line
-from sim2real.model import RigSpec
+from sim2real.camera_rig import RigSpec
+from sim2real.deploy.child import (
+    CRASH_EXIT,
+    ChildChannel,
+    ChildProcess,
+    SharedBlock,
+    one_line,
+    read_consistent,
+    run_child,
+    seqlock,
+    serve_requests,
+)
 
 log = logging.getLogger(__name__)
 
@@ -82,31 +83,18 @@ def _write_truth(
     block: np.ndarray, t_s: float, truth: Any, steps: int, table_contacts: int
 ) -> None:
     tool, objects, grasped = truth
-    block[0] += 1  # odd: writing
-    block[1] = t_s
-    block[2] = -1.0 if grasped is None else float(bool(grasped))
-    block[3] = steps
-    block[4:7] = tool
-    block[7] = table_contacts
-    for i, key in enumerate(TRUTH_KEYS):
-        o = _TRUTH_HEADER + 4 * i
-        pos = objects.get(key)
-        block[o] = 0.0 if pos is None else 1.0
-        if pos is not None:
-            block[o + 1 : o + 4] = pos
-    block[0] += 1  # even: done
-
-
-def _read_truth(block: np.ndarray) -> np.ndarray | None:
-    """A consistent copy, or None while the writer is busy (it may be preempted mid-write)."""
-    for _ in range(100):
-        s1 = block[0]
-        if s1 % 2 == 1:
-            continue
-        copy = block.copy()
-        if block[0] == s1:
-            return copy
-    return None
+    with seqlock(block):
+        block[1] = t_s
+        block[2] = -1.0 if grasped is None else float(bool(grasped))
+        block[3] = steps
+        block[4:7] = tool
+        block[7] = table_contacts
+        for i, key in enumerate(TRUTH_KEYS):
+            o = _TRUTH_HEADER + 4 * i
+            pos = objects.get(key)
+            block[o] = 0.0 if pos is None else 1.0
+            if pos is not None:
+                block[o + 1 : o + 4] = pos
 
 
 class MockArmProcess(PtyDevice):
@@ -121,47 +109,29 @@ class MockArmProcess(PtyDevice):
         self.link = None
         self.device_path = ""
         self._running = False
-        self._proc: subprocess.Popen[bytes] | None = None
-        self._conn: Connection | None = None
-        self._call_lock = threading.Lock()
-        self._stderr: Any = None
-        self._stopping = self._stopping_sent = False
-        self._final: dict[str, Any] = {}  # what the child said last (its log), for after stop
-        self._truth_shm: shared_memory.SharedMemory | None = None
+        self._child: ChildProcess | None = None
+        self._truth_block: SharedBlock | None = None
         self._truth: np.ndarray | None = None
         self._last_truth: np.ndarray | None = None
+        self._final: dict[str, Any] = {}  # what the child said last (its log), for after stop
         self.info: dict[str, Any] = {}
 
     # ---- lifecycle --------------------------------------------------------------------------
     def start(self) -> str:
-        """Start the child (``python -m sim2real.deploy.mock_arm``: a spawned multiprocessing
-        child would re-import the user's ``__main__``) and wait until it serves the pty."""
+        """Start the child and wait until it serves the pty."""
         if self._running:
             return self.port
-        self._truth_shm = shared_memory.SharedMemory(create=True, size=8 * _TRUTH_SIZE)
-        self._truth = np.ndarray((_TRUTH_SIZE,), np.float64, self._truth_shm.buf)
+        self._truth_block = SharedBlock(8 * _TRUTH_SIZE)
+        self._truth = self._truth_block.array(_TRUTH_SIZE)
         self._truth[:] = 0.0
         self._truth[1] = -1.0  # nothing published yet
-        # the child's last words, for a one-line error; closed by stop()
-        self._stderr = tempfile.TemporaryFile()  # noqa: SIM115
-        ours, theirs = socket.socketpair()
+        self._child = ChildProcess(
+            "mock arm process", "sim2real.deploy.mock_arm", (self.job, self._truth_block.name),
+            start_timeout_s=self.START_TIMEOUT_S, call_timeout_s=self.CALL_TIMEOUT_S,
+            stop_timeout_s=self.STOP_TIMEOUT_S, nice=self.job.nice,
+        )  # fmt: skip
         try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", "sim2real.deploy.mock_arm", str(theirs.fileno())],
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,  # nothing of the child's may land in a --json stdout
-                stderr=self._stderr,
-                pass_fds=(theirs.fileno(),),
-                close_fds=True,
-                env=child_env(),  # single-threaded BLAS: no worker thread to wait on
-            )
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
-        self._stopping = self._stopping_sent = False
-        try:
-            self._conn.send((self.job, self._truth_shm.name))
-            self.info = self._reply("start", self.START_TIMEOUT_S)
+            self.info = dict(self._child.start())
         except BaseException:
             self.stop()
             raise
@@ -174,96 +144,48 @@ class MockArmProcess(PtyDevice):
     def stop(self) -> None:
         """Ask the child to exit, kill it if it does not; release everything. Idempotent."""
         self._running = False
-        proc, conn = self._proc, self._conn
-        if proc is not None:
-            if proc.poll() is None and conn is not None and not self._stopping_sent:
-                self._stopping_sent = True
-                with contextlib.suppress(OSError, ValueError, EOFError, HardwareError):
-                    conn.send(("stop", ()))
-                    self._final = self._reply("stop", self.STOP_TIMEOUT_S, alive=False)
-            try:
-                proc.wait(timeout=self.STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=self.STOP_TIMEOUT_S)
-        self._stopping = True
-        if conn is not None:
-            conn.close()
-            self._conn = None
-        if self._truth_shm is not None:
+        if self._child is not None:
+            final = self._child.stop()
+            if isinstance(final, dict):
+                self._final = final
+        if self._truth_block is not None:
             self._truth = None
-            self._truth_shm.close()
-            with contextlib.suppress(FileNotFoundError):
-                self._truth_shm.unlink()
-            self._truth_shm = None
-        if self._stderr is not None:
-            self._stderr.close()
-            self._stderr = None
+            self._truth_block.close()
+            self._truth_block = None
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc_info: Any) -> None:
         """A run that failed because the arm's process died says so, in one line (the serial
         error it caused says only that the port went away)."""
-        died = self.death()
-        self.stop()
-        if exc is not None and died is not None and not isinstance(exc, KeyboardInterrupt):
-            raise HardwareError(died) from exc
+        try:
+            if self._child is not None:
+                self._child.finish(exc_info[1])
+        finally:
+            self.stop()
 
     @property
     def pid(self) -> int | None:
-        return None if self._proc is None else self._proc.pid
+        return None if self._child is None else self._child.pid
 
     def death(self) -> str | None:
         """One line saying how the child died, or None while it lives (or was stopped)."""
-        if self._proc is None or self._stopping:
-            return None
-        return death_line("mock arm process", self._proc.poll(), self._stderr)
+        return None if self._child is None else self._child.death()
 
     def check_alive(self) -> None:
-        died = self.death()
-        if died is not None:
-            raise HardwareError(died)
-
-    # ---- the control channel ----------------------------------------------------------------
-    def _reply(self, op: str, timeout_s: float, alive: bool = True) -> Any:
-        assert self._conn is not None and self._proc is not None
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                if self._conn.poll(0.05):
-                    status, value = self._conn.recv()
-                    break
-            except (EOFError, OSError):  # the channel closed: the child is dying
-                with contextlib.suppress(subprocess.TimeoutExpired):
-                    self._proc.wait(timeout=self.STOP_TIMEOUT_S)
-                if not alive:
-                    raise HardwareError(f"the mock arm process closed the channel ({op})") from None
-            if alive:
-                self.check_alive()
-            if time.monotonic() > deadline:
-                raise HardwareError(f"the mock arm process did not answer {op!r} in {timeout_s} s")
-        if status != "ok":
-            raise HardwareError(f"mock arm: {op} failed: {value}")
-        return value
+        if self._child is not None:
+            self._child.check_alive()
 
     def call(self, op: str, *args: Any) -> Any:
-        """Run one of ``OPS`` in the child and return its result (between periods: it waits)."""
-        self.check_alive()
-        if self._conn is None:
+        """Run one of the child's ops and return its result (between periods: it waits)."""
+        if self._child is None:
             raise HardwareError("the mock arm process is not running")
-        with self._call_lock:
-            self._conn.send((op, args))
-            return self._reply(op, self.CALL_TIMEOUT_S)
+        return self._child.call(op, *args)
 
     def truth(self) -> tuple[np.ndarray, dict[str, np.ndarray], bool | None]:
         """The newest physics state's truth (tool, objects, grasp), without waiting."""
         self.check_alive()
-        assert self._truth is not None
-        block = _read_truth(self._truth)
+        truth = self._truth
+        assert truth is not None
+        block = read_consistent(truth, truth.copy)
         if block is None:  # the writer was preempted mid-write: the previous state is whole
             block = self._last_truth
         if block is None or block[1] < 0.0:
@@ -327,23 +249,27 @@ def _make_emulator(job: MockArmJob) -> Any:
     )
 
 
-def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -> None:
-    from sim2real.deploy.render_process import SceneStatePublisher, attach_block
+def _serve(channel: ChildChannel) -> dict[str, Any]:
+    """Become the arm: the emulator on a pty, the physics it drives, the truth published after
+    every step; serve the host's ops until it stops us. Returns the device's log."""
+    from sim2real.deploy.render_process import SceneStateBlock
     from sim2real.deploy.worlds import MockPhysics
 
+    job, truth_name = channel.job
+    realtime = _scheduling(job)
     emulator = _make_emulator(job)
     emulator.start()
-    truth_shm = attach_block(truth_name)
-    truth: np.ndarray = np.ndarray((_TRUTH_SIZE,), np.float64, truth_shm.buf)
+    truth_block = SharedBlock(name=truth_name)
+    truth = truth_block.array(_TRUTH_SIZE)
 
     def die(exc: BaseException) -> None:  # the physics thread failed: the arm is gone
         print(f"mock physics stopped: {one_line(exc)}", file=sys.stderr, flush=True)
-        os._exit(3)
+        os._exit(CRASH_EXIT)
 
     physics = MockPhysics(job.plant.spec, job.scene, emulator, job.rig, on_error=die)
     scene = None
     if job.state_block is not None:
-        scene = SceneStatePublisher(job.state_block, physics.model.nq, physics.model.nmocap)
+        scene = SceneStateBlock(physics.model.nq, physics.model.nmocap, job.state_block)
 
     def sink(t_s: float, data: Any, now_truth: Any) -> None:
         _write_truth(truth, t_s, now_truth, physics.steps, physics.table_contacts)
@@ -352,7 +278,23 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -
 
     physics.sink = sink
     physics.start()
-    ops: dict[str, Any] = {
+    try:
+        channel.ready({"port": emulator.port, "emulator": type(emulator).__name__,
+                       "realtime": realtime})  # fmt: skip
+        serve_requests(channel, _ops(emulator, physics))
+        # its last words: the device's log, for tests after the run
+        return {"applied": emulator.applied(), "table_contacts": physics.table_contacts}
+    finally:
+        physics.close()
+        emulator.stop()
+        if scene is not None:
+            scene.close()
+        truth_block.close()  # the process exits: a view still held may stay
+
+
+def _ops(emulator: Any, physics: Any) -> dict[str, Callable[..., Any]]:
+    """What the host may ask of the simulated arm (and what only a simulator can do)."""
+    return {
         "place": physics.new_episode,
         "clear": physics.clear,
         "applied": lambda kind=None: emulator.applied(kind),
@@ -360,54 +302,26 @@ def _serve(conn: Connection, truth_name: str, job: MockArmJob, realtime: bool) -
         "true_positions_rad": lambda: np.asarray(emulator.true_positions_rad()),
         "stats": lambda: emulator.stats(),
     }
-    info = {"port": emulator.port, "emulator": type(emulator).__name__, "realtime": realtime}
-    conn.send(("ok", info))
+
+
+def _scheduling(job: MockArmJob) -> bool:
+    """The GIL switch interval and SCHED_FIFO of the job, before any thread starts (they all
+    inherit it); whether real-time scheduling was granted."""
+    if job.switch_interval_s is not None:
+        sys.setswitchinterval(job.switch_interval_s)
+    if job.realtime_priority is None:
+        return False
     try:
-        while True:
-            try:
-                op, args = conn.recv()
-            except (EOFError, OSError):
-                break  # the host is gone: so is the arm
-            if op == "stop":  # its last words: the device's log, for tests after the run
-                final = {"applied": emulator.applied(), "table_contacts": physics.table_contacts}
-                conn.send(("ok", final))
-                break
-            try:
-                if op not in ops:
-                    raise KeyError(f"unknown op {op!r}; valid: {sorted(ops)}")
-                conn.send(("ok", ops[op](*args)))
-            except Exception as exc:
-                conn.send(("error", one_line(exc)))
-    finally:
-        physics.close()
-        emulator.stop()
-        if scene is not None:
-            scene.close()
-        with contextlib.suppress(BufferError):  # the process exits: the view may stay
-            truth_shm.close()
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(job.realtime_priority))
+    except (OSError, AttributeError):
+        return False
+    return True
 
 
 def main() -> None:
-    """The child's entry point: the channel's fd is the argument; the job its first message."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the host handles Ctrl-C, then stops us
+    """The child's entry point (``run_child``: the channel's fd and the parent's pid)."""
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
-    conn = Connection(int(sys.argv[1]))
-    job, truth_name = conn.recv()
-    with contextlib.suppress(OSError):
-        os.nice(job.nice)
-    if job.switch_interval_s is not None:
-        sys.setswitchinterval(job.switch_interval_s)
-    realtime = False
-    if job.realtime_priority is not None:  # before any thread starts: they all inherit it
-        with contextlib.suppress(OSError, AttributeError):
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(job.realtime_priority))
-            realtime = True
-    try:
-        _serve(conn, truth_name, job, realtime)
-    except Exception as exc:  # start-up failed: the host raises this line
-        with contextlib.suppress(OSError):
-            conn.send(("error", one_line(exc)))
-        raise
+    run_child(_serve)
 
 
 if __name__ == "__main__":

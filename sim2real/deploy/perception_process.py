@@ -12,24 +12,16 @@ each object's track and the wrist plate's measurement with the pair's capture ti
 loop's ``perceive`` reads that block without waiting. A small control area, written by the
 parent alone, carries the episode (epoch and reset time) and the stop request.
 
-Lifecycle: the child exits when told to, when its parent dies (it checks between pairs: it never
-blocks longer than a poll interval), and on any error, with one line on stderr that the parent
+Lifecycle (``child.ChildProcess``): the child says it is ready once its tracker is built, exits
+when told to, when its parent dies, and on any error, with one line on stderr that the parent
 raises as ``HardwareError``.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import pickle
-import signal
-import subprocess
-import sys
-import tempfile
 import time
-from dataclasses import dataclass, replace
-from multiprocessing import shared_memory
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,7 +29,7 @@ import numpy as np
 from calibration.kalman import TrackerConfig
 from calibration.triangulate import StereoRig
 from hardware.errors import HardwareError
-from sim2real.deploy.child import child_env, death_line, one_line
+from sim2real.deploy import child
 from sim2real.deploy.frames import FramePair
 from sim2real.deploy.perception import (
     MarkerLayout,
@@ -46,18 +38,18 @@ from sim2real.deploy.perception import (
     Snapshot,
     Track,
 )
-from sim2real.deploy.render_process import SharedFrames, attach_block
+from sim2real.deploy.render_process import SharedFrames
 from sim2real.envs.contract import ObjectEstimate
 
-# header (float64): [lock, epoch, seq, capture_s, ee_seen, ready, pairs, plates written]
-_LOCK, _EPOCH, _SEQ, _CAPTURE, _EE_SEEN, _READY, _PAIRS, _PLATES = range(8)
+# header (float64): [lock, epoch, seq, capture_s, ee_seen, (unused), pairs, plates written]
+_LOCK, _EPOCH, _SEQ, _CAPTURE, _EE_SEEN, _, _PAIRS, _PLATES = range(8)
 _HEADER = 8
 _RING = 32  # plate measurements kept for the parent (> 1 s of pairs at 30 fps)
 _RING_FIELDS = 5  # epoch, capture_s, x, y, z
 _OBJ_FIELDS = 9  # present, position xyz, velocity xyz, blind_s, yaw (nan: none)
-# control (written by the parent only, outside the lock): [epoch, reset_s, stop]
-_CTL_EPOCH, _CTL_RESET, _CTL_STOP = range(3)
-_CTL = 3
+# control (written by the parent only, outside the lock): [epoch, reset_s]
+_CTL_EPOCH, _CTL_RESET = range(2)
+_CTL = 2
 POLL_S = 0.003  # the child's wait for a new pair (and its check on its parent)
 
 
@@ -75,7 +67,7 @@ def _block_len(n_names: int) -> int:
 
 @dataclass(frozen=True)
 class PerceptionJob:
-    """Everything the child needs (pickled to its stdin)."""
+    """Everything the child needs (pickled over its channel, with the estimate block's name)."""
 
     frames: SharedFrames
     rig: StereoRig
@@ -84,7 +76,6 @@ class PerceptionJob:
     objects: tuple[str, ...]
     ee_tracker: TrackerConfig
     nice: int = 5
-    block: str = ""  # the estimate block's name (set by ``PerceptionProcess.start``)
 
     def tracker(self) -> PairTracker:
         return PairTracker(self.rig, self.base_T_left, self.layout, self.objects, self.ee_tracker)
@@ -95,52 +86,41 @@ def _publish(
 ) -> None:
     """One pair's result under the block's sequence lock."""
     ring, objects, _ = _layout(len(names))
-    block[_LOCK] += 1  # odd: writing
-    block[_EPOCH], block[_SEQ], block[_CAPTURE] = epoch, seq, result.capture_s
-    block[_EE_SEEN] = float(result.plate_m is not None)
-    block[_PAIRS] = pairs
-    if result.plate_m is not None:
-        n = int(block[_PLATES])
-        o = ring + (n % _RING) * _RING_FIELDS
-        block[o], block[o + 1] = epoch, result.capture_s
-        block[o + 2 : o + 5] = result.plate_m
-        block[_PLATES] = n + 1
-    for i, name in enumerate(names):
-        o = objects + i * _OBJ_FIELDS
-        track = result.tracks.get(name)
-        block[o] = 0.0 if track is None else 1.0
-        if track is not None:
-            est = track.estimate
-            block[o + 1 : o + 4] = est.position_m
-            block[o + 4 : o + 7] = track.velocity_mps
-            block[o + 7] = est.blind_s
-            block[o + 8] = math.nan if est.yaw_rad is None else est.yaw_rad
-    block[_LOCK] += 1  # even: done
+    with child.seqlock(block, _LOCK):
+        block[_EPOCH], block[_SEQ], block[_CAPTURE] = epoch, seq, result.capture_s
+        block[_EE_SEEN] = float(result.plate_m is not None)
+        block[_PAIRS] = pairs
+        if result.plate_m is not None:
+            n = int(block[_PLATES])
+            o = ring + (n % _RING) * _RING_FIELDS
+            block[o], block[o + 1] = epoch, result.capture_s
+            block[o + 2 : o + 5] = result.plate_m
+            block[_PLATES] = n + 1
+        for i, name in enumerate(names):
+            o = objects + i * _OBJ_FIELDS
+            track = result.tracks.get(name)
+            block[o] = 0.0 if track is None else 1.0
+            if track is not None:
+                est = track.estimate
+                block[o + 1 : o + 4] = est.position_m
+                block[o + 4 : o + 7] = track.velocity_mps
+                block[o + 7] = est.blind_s
+                block[o + 8] = math.nan if est.yaw_rad is None else est.yaw_rad
 
 
-def _read_locked(block: np.ndarray, n: int) -> np.ndarray | None:
-    """A consistent copy of the first ``n`` values, or None while the writer holds it."""
-    for _ in range(100):
-        s1 = block[_LOCK]
-        if s1 % 2 == 1:
-            continue
-        copy = block[:n].copy()
-        if block[_LOCK] == s1:
-            return copy
-    return None
-
-
-def _serve(job: PerceptionJob, parent: int) -> None:
+def _serve(channel: child.ChildChannel) -> None:
+    """Measure each new pair of the frame block and publish the result, until stopped."""
+    job, block_name = channel.job
     frames = job.frames.open()
-    shm = attach_block(job.block)
+    shm = child.SharedBlock(name=block_name)
     tracker = job.tracker()
     names = tracker.names
-    block: np.ndarray = np.ndarray((_block_len(len(names)),), np.float64, shm.buf)
+    block: np.ndarray = shm.array(_block_len(len(names)))
     ctl = _layout(len(names))[2]
-    block[_READY] = 1.0
+    channel.ready()
     epoch, seq, pairs = -1, -1, 0
     try:
-        while block[ctl + _CTL_STOP] == 0.0 and os.getppid() == parent:
+        while not channel.stop_requested():
             want = int(block[ctl + _CTL_EPOCH])
             if want != epoch:  # a new episode: fresh tracks
                 epoch, tracker, seq = want, job.tracker(), -1
@@ -156,22 +136,12 @@ def _serve(job: PerceptionJob, parent: int) -> None:
     finally:
         del block
         frames.close()
-        with contextlib.suppress(BufferError):
-            shm.close()
+        shm.close()
 
 
 def main() -> None:
-    """The child's entry point: the job arrives pickled on stdin."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C, then stops us
-    parent = os.getppid()
-    try:
-        job: PerceptionJob = pickle.load(sys.stdin.buffer)
-        with contextlib.suppress(OSError):
-            os.nice(job.nice)
-        _serve(job, parent)
-    except Exception as exc:
-        print(one_line(exc), file=sys.stderr, flush=True)
-        sys.exit(3)
+    """The child's entry point (``child.run_child``)."""
+    child.run_child(_serve)
 
 
 class PerceptionProcess:
@@ -185,61 +155,42 @@ class PerceptionProcess:
         self.names = job.tracker().names  # checks the layout here, in one line, not in the child
         self._n = _block_len(len(self.names))
         self._ring, self._objects, self._ctl = _layout(len(self.names))
-        self._shm: shared_memory.SharedMemory | None = None
+        self._shm: child.SharedBlock | None = None
         self._block: np.ndarray | None = None
-        self._proc: subprocess.Popen[bytes] | None = None
-        self._stderr: Any = None
+        self._child: child.ChildProcess | None = None
         self._plates_read = 0
         self._last: np.ndarray | None = None
         self._frames: Any = None  # the frame block, opened here only if a pair is asked for
 
     @property
     def pid(self) -> int | None:
-        return None if self._proc is None else self._proc.pid
+        return None if self._child is None else self._child.pid
 
     def start(self) -> None:
-        """Start ``python -m sim2real.deploy.perception_process`` (not multiprocessing: a
-        spawned child would re-import the user's ``__main__``) and wait until it serves."""
-        self._shm = shared_memory.SharedMemory(create=True, size=8 * self._n)
-        self._block = np.ndarray((self._n,), np.float64, self._shm.buf)
+        """Start the child and wait until it serves."""
+        self._shm = child.SharedBlock(8 * self._n)
+        self._block = self._shm.array(self._n)
         self._block[:] = 0.0
         self._block[_EPOCH] = -1.0
         self._block[self._ctl + _CTL_RESET] = -math.inf
-        self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed by close()
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "sim2real.deploy.perception_process"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.DEVNULL,  # nothing of the child's may land in a --json stdout
-            stderr=self._stderr,
-            close_fds=True,
-            env=child_env(),  # single-threaded BLAS: no worker thread to wait on
-        )
+        self._child = child.ChildProcess(
+            "perception process", "sim2real.deploy.perception_process",
+            (self.job, self._shm.name), start_timeout_s=self.START_TIMEOUT_S,
+            stop_timeout_s=self.STOP_TIMEOUT_S, nice=self.job.nice,
+        )  # fmt: skip
         try:
-            assert self._proc.stdin is not None
-            self._proc.stdin.write(pickle.dumps(replace(self.job, block=self._shm.name)))
-            self._proc.stdin.close()
-            deadline = time.monotonic() + self.START_TIMEOUT_S
-            while self._block[_READY] == 0.0:
-                self.check_alive()
-                if time.monotonic() > deadline:
-                    raise HardwareError(
-                        f"the perception process did not start in {self.START_TIMEOUT_S:.0f} s"
-                    )
-                time.sleep(0.01)
+            self._child.start()
         except BaseException:
             self.close()
             raise
 
     def death(self) -> str | None:
         """One line saying how the child died, or None while it lives."""
-        if self._proc is None:
-            return None
-        return death_line("perception process", self._proc.poll(), self._stderr)
+        return None if self._child is None else self._child.death()
 
     def check_alive(self) -> None:
-        died = self.death()
-        if died is not None:
-            raise HardwareError(died)
+        if self._child is not None:
+            self._child.check_alive()
 
     def reset(self, epoch: int, reset_s: float) -> None:
         assert self._block is not None
@@ -250,7 +201,8 @@ class PerceptionProcess:
         self.check_alive()
         if self._block is None:
             raise HardwareError("the perception process is not running")
-        block = _read_locked(self._block, self._ctl)
+        view = self._block[: self._ctl]
+        block = child.read_consistent(view, view.copy, _LOCK)
         if block is None:  # the writer was preempted mid-write: the previous state is whole
             block = self._last
         if block is None:
@@ -289,28 +241,16 @@ class PerceptionProcess:
 
     def close(self) -> None:
         """Ask the child to stop, kill it if it does not; release the block. Idempotent."""
-        proc = self._proc
-        if proc is not None:
-            if self._block is not None:
-                self._block[self._ctl + _CTL_STOP] = 1.0
-            try:
-                proc.wait(timeout=self.STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=self.STOP_TIMEOUT_S)
-            self._proc = None
+        if self._child is not None:
+            self._child.stop()
+            self._child = None
         if self._frames is not None:
             self._frames.close()
             self._frames = None
         if self._shm is not None:
             self._block = None
             self._shm.close()
-            with contextlib.suppress(FileNotFoundError):
-                self._shm.unlink()
             self._shm = None
-        if self._stderr is not None:
-            self._stderr.close()
-            self._stderr = None
 
 
 if __name__ == "__main__":

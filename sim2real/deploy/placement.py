@@ -17,11 +17,11 @@ import numpy as np
 
 from calibration.markers import ArucoMarkerDetector
 from hardware.spec import ArmSpec
+from sim2real.camera_rig import RigSpec
 from sim2real.deploy.frames import FramePair
 from sim2real.deploy.perception import OBJECTS, MarkerLayout
 from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
 from sim2real.deploy.worlds import SceneObjects
-from sim2real.model import RigSpec
 
 
 class RigSight:

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from hardware.arm import ArmBase
+from hardware.feedback import readings_mismatch, spec_protocol_problem
 from hardware.spec import ArmSpec
 from sim2real.deploy.connection import BACKENDS, PERCEPTIONS, SIM_CLOCKS, ArmConnection
 from sim2real.deploy.loop import DeployLoop, DeployResult, LoopConfig
@@ -62,6 +63,28 @@ def build_sim(
     return arm, OraclePerception(truth), world
 
 
+def check_protocol_readings(spec: ArmSpec, protocol: str) -> None:
+    """Before a port is opened: the spec's reading kinds must be ones ``protocol`` can deliver
+    (``hardware.feedback.READING_SOURCES``), one line naming the joints otherwise."""
+    why = spec_protocol_problem(spec, protocol)
+    if why:
+        raise ConfigError(
+            f"{why}: declare each joint's feedback as its servos report it (feedback: commanded "
+            "for bare PWM servos)"
+        )
+
+
+def check_device_readings(arm: ArmBase, spec: ArmSpec) -> None:
+    """At connect: the device's reading kinds (its first state's ``measured``) must be the
+    spec's, or the policy, trained on the spec's kinds, would run on the other kind."""
+    why = readings_mismatch(spec, arm.read_state().measured_mask)
+    if why:
+        raise ConfigError(
+            f"{why}: use the spec of the build on the port (potentiometers wired: measured; "
+            "bare PWM servos: commanded), or flash the board with this spec's limits"
+        )
+
+
 def _scene(io: PolicyIO) -> str:
     from sim2real.envs import TASKS
 
@@ -79,6 +102,7 @@ def build_mock(
     from sim2real.deploy.worlds import MockWorld
     from sim2real.model import RigSpec
 
+    check_protocol_readings(spec, opts.protocol)
     plant = opts.plant_for(spec)  # checked against the spec, its watchdog relaxed if asked
     rig, scene = RigSpec(), _scene(io)
     stereo, base_T_left = _mock_stereo(rig, opts)  # its files read before anything starts
@@ -102,6 +126,7 @@ def build_mock(
         **opts.relaxed_host(),
     )
     stack.enter_context(arm)
+    check_device_readings(arm, spec)
     arm.emulator = arm_process  # type: ignore[attr-defined]  # tests reach the mock through the arm
     arm.world = world  # type: ignore[attr-defined]
     perception = _stereo_perception(cameras, stereo, base_T_left, spec, io, opts, stack)
@@ -119,16 +144,14 @@ def _mock_cameras(
     """The rig's two cameras rendering the plant's scene in a process of their own, started.
     Rendering is a simulation's cost, not a camera's: on a loaded machine the mock's frames
     arrive late rather than never, so its timeout is longer than a USB camera's."""
-    import mujoco
-
     from sim2real.deploy.render_process import RenderConfig, RenderedStereoCameras
-    from sim2real.model import build_mjcf
+    from sim2real.twin_mjcf import TwinScene
 
-    xml = build_mjcf(plant_spec, scene, rig, markers=True)
-    model = mujoco.MjModel.from_xml_string(xml)
+    twin = TwinScene(plant_spec, scene, rig, markers=True)
+    model = twin.model()
     cam = rig.cameras[0]
     cameras = RenderedStereoCameras(
-        RenderConfig(xml=xml, width_px=cam.width_px, height_px=cam.height_px,
+        RenderConfig(twin=twin, width_px=cam.width_px, height_px=cam.height_px,
                      fps=opts.camera_fps, nice=opts.camera_nice,
                      timeout_s=opts.camera_timeout_s or 5.0),
         model.nq, model.nmocap,
@@ -186,6 +209,7 @@ def _stereo_perception(
 def build_serial(
     spec: ArmSpec, io: PolicyIO, opts: DeployOptions, stack: contextlib.ExitStack
 ) -> Built:
+    check_protocol_readings(spec, opts.protocol)
     if opts.perception == "fk":  # no cameras (and no MuJoCo): sim2real.deploy.kinematic
         from sim2real.deploy.kinematic import build_serial_fk
 
@@ -210,6 +234,7 @@ def build_serial(
     frames.start()
     arm = SerialArm(spec, opts.port, opts.protocol, opts.baud, opts.joint_calibration)
     stack.enter_context(arm)
+    check_device_readings(arm, spec)
     perception = _stereo_perception(frames, stereo, base_T_left, spec, io, opts, stack)
     return arm, perception, CameraWorld()
 
@@ -231,7 +256,7 @@ def deploy(
 
     policy = load_policy(resolve_policy(policy_ref))
     meta = policy.meta
-    meta.check_spec(spec.fingerprint())
+    meta.check_spec(spec)
     io = policy_io(spec, meta)
     if abs(meta.control_hz - config.rate_hz) > 1e-9:
         raise ConfigError(
@@ -242,6 +267,54 @@ def deploy(
         lambda obs: policy(obs), io, spec, opts, config, log_path, video_path, meta.obs_keys,
         dataset_path, live,
     )  # fmt: skip
+
+
+def _outputs(
+    stack: contextlib.ExitStack,
+    perception: Any,
+    spec: ArmSpec,
+    io: PolicyIO,
+    config: LoopConfig,
+    video_path: Path | None,
+    dataset_path: Path | None,
+) -> tuple[Any, Any]:
+    """What a run writes besides its log: a video of the left camera, a LeRobot dataset."""
+    cameras = isinstance(perception, StereoPerception)
+    writer = None
+    if video_path is not None and cameras:
+        import imageio.v2 as imageio
+
+        writer = imageio.get_writer(str(video_path), fps=config.rate_hz, macro_block_size=8)
+        stack.callback(writer.close)
+    recorder = None
+    if dataset_path is not None:
+        from sim2real.deploy.recording import DeployRecorder
+
+        recorder = DeployRecorder(dataset_path, spec, io, config.rate_hz, cameras)
+    return writer, recorder
+
+
+def _on_frame(
+    perception: Any,
+    writer: Any,
+    recorder: Any,
+    live: LivePeriods | None,
+    rows: Callable[[], Mapping[str, list[Any]]],
+) -> Callable[[], None] | None:
+    """The loop's per-period callback feeding them (None: nothing to feed)."""
+    if writer is None and recorder is None and live is None:
+        return None
+
+    def on_frame() -> None:
+        frames = perception.last_frames if isinstance(perception, StereoPerception) else None
+        if writer is not None and frames is not None:
+            writer.append_data(frames[0][:, :, ::-1])
+        if recorder is not None:
+            recorder.on_period(frames)
+        if live is not None:
+            live.log_period({k: v[-1] for k, v in rows().items() if v}, frames)
+
+    return on_frame
 
 
 def run_policy(
@@ -264,28 +337,8 @@ def run_policy(
         bind = getattr(policy, "bind", None)
         if callable(bind):  # a privileged teacher (privileged.TruthTeacher) reads the truth
             world = bind(arm, world)
-        cameras = isinstance(perception, StereoPerception)
-        writer = None
-        if video_path is not None and cameras:
-            import imageio.v2 as imageio
-
-            writer = imageio.get_writer(str(video_path), fps=config.rate_hz, macro_block_size=8)
-            stack.callback(writer.close)
-        recorder = None
-        if dataset_path is not None:
-            from sim2real.deploy.recording import DeployRecorder
-
-            recorder = DeployRecorder(dataset_path, spec, io, config.rate_hz, cameras)
-
-        def on_frame() -> None:
-            frames = perception.last_frames if isinstance(perception, StereoPerception) else None
-            if writer is not None and frames is not None:
-                writer.append_data(frames[0][:, :, ::-1])
-            if recorder is not None:
-                recorder.on_period(frames)
-            if live is not None:
-                live.log_period({k: v[-1] for k, v in loop.log.rows.items() if v}, frames)
-
+        writer, recorder = _outputs(stack, perception, spec, io, config, video_path, dataset_path)
+        on_frame = _on_frame(perception, writer, recorder, live, lambda: loop.log.rows)
         loop = DeployLoop(
             arm,
             perception,
@@ -294,7 +347,7 @@ def run_policy(
             io,
             config,
             log_path=log_path,
-            on_frame=on_frame if (writer, recorder, live) != (None, None, None) else None,
+            on_frame=on_frame,
             obs_keys=obs_keys,
             on_episode=None if recorder is None else recorder.on_episode,
         )

@@ -506,11 +506,18 @@ class ControlSession:
             setter(on)
 
     def safe_stop(self) -> None:
-        """Hold, park if the arm still answers, then torque off (close does it)."""
+        """Hold, park if the arm still answers, then torque off. An arm that stopped itself on a
+        fault (a stall, a pose it could not reach, a brown-out: ``ArmBase``'s fault stop) is
+        already held up and parked slowly with its torque on: it is left so, not dropped; its
+        torque goes off when the host lets go of it (close, or the firmware watchdog)."""
         try:
             self.set_pipelined(False)
         except Exception as exc:  # the posted command's reply is lost: stop all the same
             log.warning("the last command's reply: %s", exc)
+        fault = self.arm.estop_reason
+        if fault is not None and self.arm.is_enabled and self.arm.is_connected:
+            log.warning("the arm stopped itself (%s); it is left holding, torque on", fault)
+            return
         try:
             if self.arm.is_enabled and not self.config.dry_run:
                 self.arm.hold()

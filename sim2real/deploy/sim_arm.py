@@ -9,6 +9,11 @@ keeps moving while the host thinks.
 
 Between episodes (``move_to``: home, park) a free finger caught in the model's numerical limit
 cycle is set at rest where its actuator drives it; see ``FINGER_CYCLE_SPEED_M_S``.
+
+Readings follow the spec's kinds (``hardware.spec.FEEDBACK_KINDS``), as the envs' sensor model
+does: a measured actuator reads its joint; a commanded one (bare PWM servos) reads what the board
+last output, its targets slewed at the spec's speeds in simulated time (the firmware's slew-rate
+limit), whatever the joint does; ``ArmState.measured`` says which.
 """
 
 from __future__ import annotations
@@ -23,9 +28,11 @@ import numpy as np
 from hardware.arm import ArmBase, ArmState
 from hardware.spec import ArmSpec
 from sim2real.actuation import ServoActuation
+from sim2real.camera_rig import RigSpec
 from sim2real.errors import UnknownNameError
-from sim2real.model import FINGER_GEOMS, ArmTwin, RigSpec, build_model
-from sim2real.scene_names import FINGER_JOINTS
+from sim2real.scene_names import FINGER_GEOMS, FINGER_JOINTS
+from sim2real.twin import ArmTwin
+from sim2real.twin_mjcf import build_model
 
 CLOCKS = ("lockstep", "realtime")
 # The finger actuator's damping (kv) is stiff for the 5 ms step and counts inside its force
@@ -71,6 +78,15 @@ class SimArm(ArmBase):
         self._bias = self.model.actuator_biasprm[:, :3].copy()
         self._targets = spec.actuator_park_rad.copy()
         self._n = n
+        # commanded readings: the board's output (rad) and when it was last slewed (sim time)
+        self._measured = spec.actuator_measured
+        self._echo_measured = None if bool(self._measured.all()) else self._measured
+        speeds = [spec.servo.max_speed_rad_s] * n
+        if spec.gripper is not None:
+            speeds.append(spec.gripper.max_speed_rad_s)
+        self._slew_rad_s = np.array(speeds)
+        self._echo = self._targets.copy()
+        self._echo_t = 0.0
         self._wall_t0 = 0.0
         self._moving = False  # inside move_to (home, park): between episodes
         if self.twin.has_gripper:
@@ -107,6 +123,16 @@ class SimArm(ArmBase):
         if self.clock == "realtime":
             behind = (time.monotonic() - self._wall_t0) - self.data.time
             self._advance(behind)
+        self._slew_echo()
+
+    def _slew_echo(self) -> None:
+        """The board's output pulses slewed towards the targets up to now (simulated time)."""
+        dt = self.data.time - self._echo_t
+        self._echo_t = self.data.time
+        if self._echo_measured is None or dt <= 0 or not self.torque_on:
+            return
+        d = self._targets - self._echo
+        self._echo = self._echo + np.clip(d, -self._slew_rad_s * dt, self._slew_rad_s * dt)
 
     # ---- hooks ------------------------------------------------------------------------------
     def _connect(self) -> None:
@@ -117,6 +143,7 @@ class SimArm(ArmBase):
         self._set_torque(False, None)
         mujoco.mj_forward(self.model, self.data)
         self._wall_t0 = time.monotonic()
+        self._echo, self._echo_t = park.copy(), float(self.data.time)
 
     def _close(self) -> None:
         """Nothing to release: the model stays inspectable after close."""
@@ -127,13 +154,21 @@ class SimArm(ArmBase):
         vel = self.twin.joint_velocities(self.data)
         if self.twin.has_gripper:
             vel = np.append(vel, 0.0)
+        if self._echo_measured is not None:  # what the board sent, not where the joint is
+            pos = np.where(self._measured, pos, self._echo)
+            vel = np.where(self._measured, vel, 0.0)
         res = self.spec.servo.resolution_rad
         if res > 0:  # a servo reports positions in whole encoder / pulse steps
             pos = np.rint(pos / res) * res
-        return ArmState(positions_rad=pos, timestamp_s=float(self.data.time), velocities_rad_s=vel)
+        return ArmState(
+            positions_rad=pos,
+            timestamp_s=float(self.data.time),
+            velocities_rad_s=vel,
+            measured=self._echo_measured,
+        )
 
     def _send_targets(self, targets_rad: np.ndarray) -> np.ndarray:
-        self._catch_up()
+        self._catch_up()  # the output slews towards the last targets until now
         self._targets = np.asarray(targets_rad, dtype=float).copy()
         joint_ctrl = self.servo(self._targets[: self._n], np.random.default_rng(0))
         grip = float(self._targets[-1]) if self.twin.has_gripper else None
@@ -166,6 +201,7 @@ class SimArm(ArmBase):
             m.actuator_biasprm[:, :3] = self._bias
             hold = self.twin.actuator_positions(self.data) if hold_rad is None else hold_rad
             self._targets = np.asarray(hold, dtype=float).copy()
+            self._echo, self._echo_t = self._targets.copy(), float(self.data.time)  # no snap
             self.servo.reset(self._targets[: self._n])
             grip = float(self._targets[-1]) if self.twin.has_gripper else None
             self.twin.write_ctrl(self.data, self._targets[: self._n], grip)

@@ -18,9 +18,11 @@ from calibration.camera import CameraModel
 from calibration.triangulate import StereoRig
 from hardware.spec import ArmSpec
 from sim2real import model as names
+from sim2real.camera_rig import RigSpec
 from sim2real.deploy.marker_textures import install_marker_textures, marker_image
-from sim2real.model import ArmTwin, RigSpec, build_model
 from sim2real.rendering import FastRenderer
+from sim2real.twin import ArmTwin
+from sim2real.twin_mjcf import build_model
 
 __all__ = [
     "StereoFrames",

@@ -29,8 +29,10 @@ import numpy as np
 from hardware.emulator.coupling import BodyCoupling
 from hardware.spec import ArmSpec
 from sim2real import model as names
+from sim2real.camera_rig import RigSpec
 from sim2real.envs.contract import View
-from sim2real.model import ArmTwin, RigSpec, build_mjcf
+from sim2real.twin import ArmTwin
+from sim2real.twin_mjcf import build_model
 
 if TYPE_CHECKING:
     from sim2real.deploy.mock_arm import MockArmProcess
@@ -220,8 +222,7 @@ class MockPhysics:
         self.spec = spec
         self.rig = rig or RigSpec()
         self.emulator = emulator
-        self.xml = build_mjcf(spec, scene, self.rig, markers=True)
-        self.model = mujoco.MjModel.from_xml_string(self.xml)
+        self.model = build_model(spec, scene, self.rig, markers=True)
         self.data = mujoco.MjData(self.model)
         self.twin = ArmTwin(self.model, spec)
         self.objects = SceneObjects(self.model, self.rig)

@@ -95,8 +95,15 @@ class Task(ABC):
     # grasp-aware estimate while the fingers hide it, and ``obs_aux[0]``).
     goal_rule: ClassVar[str] = "tool_to_point"
     # The grasp-aware estimate: a hidden object moves with the tool while the gripper reads this
-    # far open of "closed" while commanded closed (``pick.holding``); blind times cap here.
+    # far open of "closed" while commanded closed (``pick.holding``); blind times cap here. A
+    # gripper that reads its command (``feedback: commanded``) cannot read a blocked close: it
+    # holds when closed with the object's estimate within ``grasp_near_m`` of the tool's, or
+    # hidden in fingers that held it (``pick.held_seen``).
     hold_margin_rad: ClassVar[float] = math.inf
+    grasp_near_m: ClassVar[float] = 0.0
+    # A sighting this far from the tool while the fingers hold the object is not the object
+    # (``pick.cube_estimate``): the estimate stays with the tool.
+    held_away_m: ClassVar[float] = math.inf
     blind_cap_s: ClassVar[float] = 0.0
     # ``shaping`` compiled into the observation's call (``fused.SHAPING_RULES``), fed by
     # ``shaping_ids``/``shaping_prm``, which the task keeps current; "none": ``shaping`` runs.
@@ -235,10 +242,25 @@ def register_task(cls: type[Task]) -> type[Task]:
     return cls
 
 
+_NOT_COPYABLE = (
+    "{} cannot be copied or pickled (its compiled step reads views of its own MuJoCo "
+    "buffers): make another with sim2real.envs.make(id, **kwargs) and reset it with the seed"
+)
+
+
 class Arm3Env(gym.Env[Any, np.ndarray]):
     """The hobby arm in MuJoCo with domain randomisation, for any registered ``Task``."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> Arm3Env:
+        """Refused (and pickling, ``__reduce_ex__``): the compiled step reads views of this env's
+        MuJoCo buffers and its observation memory, and draws from a generator bound by address
+        (``fused.RngBinding``); a copy's views would still read the original's arrays."""
+        raise TypeError(_NOT_COPYABLE.format(type(self).__name__))
+
+    def __reduce_ex__(self, protocol: Any) -> Any:
+        raise TypeError(_NOT_COPYABLE.format(type(self).__name__))
 
     def __init__(
         self,
@@ -317,13 +339,21 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         self.actuation = ServoActuation(spec, self.control_dt_s, n_j)
         cam0 = self.rig.cameras[0]
         T = cam0.base_T_cam()
+        # readings that echo the command (``feedback: commanded``), slewed as the board slews
+        # its output pulse: at the spec's speeds, the firmware's slew-rate limit
+        speeds = [spec.servo.max_speed_rad_s] * n_j
+        if spec.gripper is not None:
+            speeds.append(spec.gripper.max_speed_rad_s)
+        n_r = self._n_readings
         self.sensors = SensorModel(
-            self._n_readings,
+            n_r,
             spec.servo.resolution_rad,
             T[:3, :3],
             T[:3, 3],
             cam0.focal_px,
             self.rig.baseline_m,
+            commanded=~spec.actuator_measured[:n_r],
+            slew_rad_per_step=np.array(speeds[:n_r]) * self.control_dt_s,
         )
         self.builder = ObservationBuilder(
             self.task.obs_fields(self._n_readings, self._n_act, obs_mode == "goal")
@@ -595,10 +625,14 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         grip_reading = self.task.uses_gripper
         obs_qadr = np.append(self._qadr, self.twin.finger_qadr[:1] if grip_reading else [])
         links, signs = spec.links, [j.sign for j in spec.joints[:3]]
-        prm = np.zeros(fused.N_PRM + self._n_readings)
+        prm = np.zeros(fused.N_PRM + 2 * self._n_readings)
         prm[fused.P_DT] = self.control_dt_s
         prm[fused.P_GRIP_CLOSED : fused.P_GRIP_READ + 1] = (closed, opened, gap, grip_reading)
         prm[fused.P_HOLD_MARGIN] = self.task.hold_margin_rad
+        prm[fused.P_HOLD_NEAR] = self.task.grasp_near_m
+        prm[fused.P_HELD_AWAY] = self.task.held_away_m
+        grip_kind = g.feedback if g is not None and grip_reading else "measured"
+        prm[fused.P_HOLD_RULE] = fused.HOLD_RULES[grip_kind]
         prm[fused.P_BLIND_CAP] = self.task.blind_cap_s
         prm[fused.P_SIGN0 : fused.P_SIGN2 + 1] = signs
         prm[fused.P_UPPER : fused.P_TOOL_DOWN + 1] = (
@@ -632,7 +666,8 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         )
         fused.put_sensing(self._prm, sensors)
         delay, k = sensors.delay_steps, self.task.n_points
-        self._obs_ints[: fused.S_RNG_NEXT] = (delay, 0, 0)
+        self._obs_ints[: fused.S_RNG_NEXT] = (delay, 0, 0, 0)
+        self._obs_ints[fused.S_CARRIED] = 0
         self._obs_mem = fused.observe_memory(k, self._n_readings, delay)
         self._goals = fused.observe_goals(self._obs_mem, k)
 
@@ -675,8 +710,8 @@ class Arm3Env(gym.Env[Any, np.ndarray]):
         vec = np.empty(self.builder.size, dtype=np.float32)
         d, shaped = fused.observe(
             self._qpos, self._tool_xpos, points, self._prm, ints, noise, self._obs_mem,
-            self._targets, self._prev_action, task.obs_aux, achieved, desired, vec, self._geom_xpos,
-            task.shaping_ids, task.shaping_prm,
+            self._targets, self._sent, self._prev_action, task.obs_aux, achieved, desired, vec,
+            self._geom_xpos, task.shaping_ids, task.shaping_prm,
         )  # fmt: skip
         return vec, d, shaped
 

@@ -11,10 +11,12 @@ kernel equal to its reference on random inputs:
 * ``actuate`` ≡ ``actuation.ServoActuation`` (``hardware.servo_model.StepServo``), on its state;
 * ``command`` ≡ ``decode`` then ``actuate`` (the step's action side when no safety filter sits
   between them);
-* ``observe`` ≡ ``randomization.sensing.SensorModel`` (``read`` → ``occlude`` → ``delay``), the
-  tasks' goal rules and ``observation.command_readings`` / ``ObservationBuilder.build``, and a
-  task's compiled shaping (pick: ``grasp_reach``, then ``grasp_shaping`` ≡ ``PickTask``'s
-  ``is_grasped`` and ``lift_m`` where the contact list decides).
+* ``observe`` ≡ ``randomization.sensing.SensorModel`` (``read`` → ``occlude`` → ``delay``; a
+  commanded reading is the echo of what was sent, ``SensorModel.echo``), the tasks' goal rules
+  (pick: ``pick.judge_holding`` by the gripper's reading kind, then ``pick.cube_estimate``) and
+  ``observation.command_readings`` / ``ObservationBuilder.build``, and a task's compiled shaping
+  (pick: ``grasp_reach``, then ``grasp_shaping`` ≡ ``PickTask``'s ``is_grasped`` and ``lift_m``
+  where the contact list decides).
 
 Per call, numba unboxes every array argument (about 0.05 µs each): the kernels take a few
 packed arrays (``prm``, ``ints``, ``mem``, ``cmd``) rather than one per quantity.
@@ -245,20 +247,29 @@ P_OCC_RADIUS, P_OCC_PROB, P_DROPOUT, P_DT = 4, 5, 6, 7
 P_GRIP_CLOSED, P_GRIP_OPEN, P_GRIP_GAP, P_GRIP_READ = 8, 9, 10, 11
 P_HOLD_MARGIN, P_BLIND_CAP, P_SIGN0, P_SIGN1, P_SIGN2 = 12, 13, 14, 15, 16
 P_UPPER, P_FORE, P_TOOL_FWD, P_BASE_H, P_TOOL_DOWN = 17, 18, 19, 20, 21
-P_GOAL_RULE, P_OCCLUDABLE, P_SHAPING = 22, 23, 24
+P_GOAL_RULE, P_OCCLUDABLE, P_SHAPING, P_HOLD_RULE, P_HOLD_NEAR = 22, 23, 24, 25, 26
+P_HELD_AWAY = 27  # a sighting this far from the tool is not the object the fingers hold
 # the sensor model's vectors: position bias, σ coefficients, camera position, its z axis and
-# base_R_cam (row-major), then the joint readings' biases (one per reading) to the end
-P_POS_BIAS, P_SIGMA, P_CAM_P, P_CAM_Z, P_CAM_R, P_JOINT_BIAS = 25, 28, 31, 34, 37, 46
-N_PRM = P_JOINT_BIAS  # ``prm`` has N_PRM + (number of joint readings) slots
-# ``state``: the delay line's length and count, whether the points were seen since the reset, and
-# the generator the occlusion draws come from (``bind_rng``)
-S_DELAY, S_COUNT, S_SEEN, S_RNG_NEXT, S_RNG_STATE, N_STATE = 0, 1, 2, 3, 4, 5
+# base_R_cam (row-major); then per joint reading its bias, then its echo's slew per period
+# (``SensorModel.slew_rad_per_step``; 0.0: a measured reading), to the end
+P_POS_BIAS, P_SIGMA, P_CAM_P, P_CAM_Z, P_CAM_R, P_JOINT_BIAS = 28, 31, 34, 37, 40, 49
+N_PRM = P_JOINT_BIAS  # ``prm`` has N_PRM + 2 × (number of joint readings) slots
+# ``state``: the delay line's length and count, whether the points were seen since the reset,
+# the last period's grasp judgement (``HOLD_RULES["commanded"]``), and the generator the
+# occlusion draws come from (``bind_rng``)
+S_DELAY, S_COUNT, S_SEEN, S_HELD, S_RNG_NEXT, S_RNG_STATE, N_STATE = 0, 1, 2, 3, 4, 5, 7
+S_CARRIED = 6  # the last period's object estimate was the tool (``pick.cube_estimate``)
 
 # How a task's observed goal is formed (``Task.goal_rule``): (achieved, desired).
 GOAL_RULES = {
     "tool_to_point": 0,  # the tool estimate, the first task point's estimate
     "object_to_goal": 1,  # the grasp-aware object estimate, the task's goal (``Task.obs_aux[0]``)
 }
+# How the grasp-aware estimate judges "holding" (``pick.HOLD_RULES``), by the gripper reading's
+# kind: a measured gripper from its reading (blocked open while commanded closed); one that reads
+# its command from the estimates (closed, the cube within ``P_HOLD_NEAR`` of the tool or hidden
+# in fingers that held it the period before).
+HOLD_RULES = {"measured": 0, "commanded": 1}
 # A task's compiled shaping (``Task.shaping_rule``), from ``Task.shaping_ids``/``shaping_prm``.
 SHAPING_RULES = {
     "none": 0,  # ``Task.shaping`` runs in Python (0 unless the task overrides it)
@@ -299,7 +310,11 @@ def put_sensing(prm: np.ndarray, sensors: SensorModel) -> None:
     prm[P_DROPOUT] = sensors.dropout_prob
     prm[P_POS_BIAS : P_POS_BIAS + 3] = sensors.pos_bias
     prm[P_SIGMA : P_SIGMA + 3] = sensors.sigma_coef
-    prm[P_JOINT_BIAS:] = sensors.joint_bias
+    n = len(sensors.joint_bias)
+    prm[P_JOINT_BIAS : P_JOINT_BIAS + n] = sensors.joint_bias
+    prm[P_JOINT_BIAS + n : P_JOINT_BIAS + 2 * n] = np.where(
+        sensors.commanded, sensors.slew_rad_per_step, 0.0
+    )
 
 
 @_jit
@@ -318,10 +333,10 @@ def observe_ints(qadr: np.ndarray, layout: np.ndarray) -> np.ndarray:
 
 def observe_memory(k: int, n_readings: int, delay: int) -> np.ndarray:
     """``observe``'s ``mem`` for k task points and a delay line of ``delay`` steps: the last
-    seen estimates (k, 3), the blind counts (k,), the goals (2, 3), then the delay line's rows
-    of readings (delay + 1, each: joints, points (k + 1, 3), blind times (k,)). Zeros: as
-    after a reset."""
-    return np.zeros(4 * k + 6 + (delay + 1) * (n_readings + 3 * (k + 1) + k))
+    seen estimates (k, 3), the blind counts (k,), the goals (2, 3), the echoes of commanded
+    readings (n_readings,), then the delay line's rows of readings (delay + 1, each: joints,
+    points (k + 1, 3), blind times (k,)). Zeros: as after a reset."""
+    return np.zeros(4 * k + 6 + n_readings + (delay + 1) * (n_readings + 3 * (k + 1) + k))
 
 
 def observe_goals(mem: np.ndarray, k: int) -> np.ndarray:
@@ -339,6 +354,7 @@ def observe(
     noise: np.ndarray,
     mem: np.ndarray,
     targets_rad: np.ndarray,
+    sent_rad: np.ndarray,
     prev_action: np.ndarray,
     aux: np.ndarray,
     true_achieved_m: np.ndarray,
@@ -352,15 +368,18 @@ def observe(
     the task's compiled shaping (``prm[P_SHAPING]``, ``SHAPING_RULES``; 0.0 without one; NaN
     when it needs MuJoCo's contact list: ``grasp_reach``).
 
-    ``prm``: ``N_PRM`` slots, then one joint bias per reading. ``ints``: ``observe_ints``
-    (its ``S_*`` state advanced in place); ``mem``: ``observe_memory`` (in place).
+    ``prm``: ``N_PRM`` slots, then per reading its bias, then its echo's slew (0: measured).
+    ``ints``: ``observe_ints`` (its ``S_*`` state advanced in place); ``mem``:
+    ``observe_memory`` (in place). ``targets_rad``: the decoded targets (the observation's
+    command side); ``sent_rad``: what the safety filter let through, which commanded readings
+    echo (``SensorModel.echo``; the first call after a reset starts there).
     ``noise``: this step's standard normals (joints, then 3 per point: the tool, the task's).
     The occlusion draws, ``rng.random((2, k))``'s, come from the generator ``RngBinding`` put
     into ``ints`` (none on the first call after a reset, as ``SensorModel.occlude``).
     ``geom_xpos``: MuJoCo's geom positions, read by the shaping rule only.
     Few arguments on purpose: unboxing each costs about 0.05 µs a call.
     """
-    n_r = prm.shape[0] - N_PRM
+    n_r = (prm.shape[0] - N_PRM) // 2
     n_j = n_r - 1 if prm[P_GRIP_READ] > 0.0 else n_r
     k = true_points_m.shape[0]
     state = ints[:N_STATE]
@@ -369,13 +388,15 @@ def observe(
     last_seen_m = mem[: 3 * k].reshape((k, 3))
     blind_steps = mem[3 * k : 4 * k]
     goals_out = mem[4 * k : 4 * k + 6].reshape((2, 3))
+    echo = mem[4 * k + 6 : 4 * k + 6 + n_r]
+    slew = prm[P_JOINT_BIAS + n_r : P_JOINT_BIAS + 2 * n_r]
     # the delay line's rows: this call's readings go straight into row ``slot``
     delay = state[S_DELAY]
     count = state[S_COUNT]
     state[S_COUNT] = count + 1
     rows = delay + 1
     row_size = n_r + 3 * (k + 1) + k
-    line = mem[4 * k + 6 : 4 * k + 6 + rows * row_size].reshape((rows, row_size))
+    line = mem[4 * k + 6 + n_r : 4 * k + 6 + n_r + rows * row_size].reshape((rows, row_size))
     slot = count % rows
     joints = line[slot, :n_r]
     points = line[slot, n_r : n_r + 3 * (k + 1)].reshape((k + 1, 3))
@@ -388,9 +409,22 @@ def observe(
         closed, opened = prm[P_GRIP_CLOSED], prm[P_GRIP_OPEN]
         frac = _clip(2 * qpos[qadr[n_j]] / prm[P_GRIP_GAP], 0.0, 1.0)
         joints[n_j] = closed + frac * (opened - closed)
+    for i in range(n_r):  # SensorModel.echo: a commanded reading is the slewed command
+        if slew[i] > 0.0:
+            if count == 0:
+                echo[i] = sent_rad[i]
+            else:
+                d = sent_rad[i] - echo[i]
+                if abs(d) <= slew[i]:
+                    echo[i] = sent_rad[i]
+                elif d > 0:
+                    echo[i] = echo[i] + slew[i]
+                else:
+                    echo[i] = echo[i] - slew[i]
+            joints[i] = echo[i]
     for i in range(n_r):
-        v = joints[i] + prm[P_JOINT_BIAS + i]
-        if jn > 0:
+        v = joints[i] + prm[P_JOINT_BIAS + i] if slew[i] == 0.0 else joints[i] + 0.0
+        if jn > 0 and slew[i] == 0.0:
             v = v + jn * noise[i]
         if res > 0:
             v = np.rint(v * inv_res) * res
@@ -454,15 +488,38 @@ def observe(
         points = line[out, n_r : n_r + 3 * (k + 1)].reshape((k + 1, 3))
         blind = line[out, n_r + 3 * (k + 1) :]
     # --- the task's goal rule (``pick.cube_estimate``: an unseen object in holding fingers
-    # moves with the tool)
+    # moves with the tool; ``pick.judge_holding``: by the gripper reading's kind)
     obj = points[1]
-    if blind[0] > 0.0 and n_j < n_r and targets_rad.shape[0] > n_j:
+    if n_j < n_r and targets_rad.shape[0] > n_j:
         closed = prm[P_GRIP_CLOSED]
         span = prm[P_GRIP_OPEN] - closed
         commanded_closed = (targets_rad[n_j] - closed) / span < 0.25
         reading_open = (joints[n_j] - closed) * np.sign(span) > prm[P_HOLD_MARGIN]
-        if commanded_closed and reading_open:
-            obj = points[0]
+        if prm[P_HOLD_RULE] == 0.0:  # measured: the fingers stopped open by something
+            held = commanded_closed and reading_open
+        else:  # commanded: closed, and the cube at the tool or hidden in holding fingers
+            held = False
+            if commanded_closed and not reading_open:
+                if blind[0] > 0.0 and state[S_HELD] != 0:
+                    held = True
+                else:
+                    h0 = obj[0] - points[0, 0]
+                    h1 = obj[1] - points[0, 1]
+                    h2 = obj[2] - points[0, 2]
+                    held = math.sqrt(_dot3(h0, h1, h2, h0, h1, h2)) < prm[P_HOLD_NEAR]
+            state[S_HELD] = 1 if held else 0
+        carried = False
+        if held:  # hidden in the fingers, or, carried, "seen" where the object in them is not
+            a0 = obj[0] - points[0, 0]
+            a1 = obj[1] - points[0, 1]
+            a2 = obj[2] - points[0, 2]
+            away = math.sqrt(_dot3(a0, a1, a2, a0, a1, a2)) > prm[P_HELD_AWAY]
+            if blind[0] > 0.0 or (away and state[S_CARRIED] != 0):
+                obj = points[0]
+                carried = True
+            else:
+                carried = not away
+        state[S_CARRIED] = 1 if carried else 0
     if prm[P_GOAL_RULE] == 0:
         achieved, desired = points[0], obj
     else:

@@ -1,7 +1,20 @@
-"""Pick: grasp a small cube from the table and lift it at least 5 cm (gripper is a 4th action)."""
+"""Pick: grasp a small cube from the table and lift it at least 5 cm (gripper is a 4th action).
+
+"Holding" (the grasp-aware cube estimate, deploy's success and put-down, the shaping on the arm)
+is judged from what the arm can know, which depends on its gripper's reading kind
+(``hardware.spec.FEEDBACK_KINDS``, ``HOLD_RULES``): a *measured* gripper feels the cube (its
+reading stops open while it is commanded closed, ``holding``); one that reads its *command* (a
+bare PWM servo) reads "closed" whether it holds a cube or nothing, so the cameras judge
+(``held_seen``): the gripper closed with the cube's estimate at the tool's, and, once the
+fingers hide it, still held until it is seen away from the tool. What it loses: an empty close
+right beside the cube counts as a grasp until the lift shows the cube left behind, and a cube
+that slips out unseen is carried in the estimate until it is seen again.
+"""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -46,40 +59,132 @@ def cube_readings(ee_m: np.ndarray, cube_m: np.ndarray, blind_s: float) -> dict[
     }
 
 
-def holding(spec: ArmSpec, commanded_rad: np.ndarray, reading_rad: np.ndarray) -> bool:
-    """The gripper holds something: commanded (nearly) closed, yet it reads open by more than
-    ``HOLD_MARGIN_RAD`` (an object stops the fingers). Actuator vectors: joints, then gripper.
-    Servo readings only, so the env, the deploy loop and a real arm judge it alike."""
+def _gripper_closed(
+    spec: ArmSpec, commanded_rad: np.ndarray, reading_rad: np.ndarray
+) -> tuple[bool, bool] | None:
+    """(commanded (nearly) closed, reading more than ``HOLD_MARGIN_RAD`` open of closed), or
+    None without a gripper in both vectors."""
     grip, n = spec.gripper, spec.n_joints
     if grip is None or len(commanded_rad) <= n or len(reading_rad) <= n:
-        return False
+        return None
     span = grip.open_rad - grip.closed_rad
     commanded_closed = (float(commanded_rad[n]) - grip.closed_rad) / span < 0.25
     reading_open = (float(reading_rad[n]) - grip.closed_rad) * np.sign(span) > HOLD_MARGIN_RAD
-    return bool(commanded_closed and reading_open)
+    return commanded_closed, reading_open
+
+
+def holding(spec: ArmSpec, commanded_rad: np.ndarray, reading_rad: np.ndarray) -> bool:
+    """A measured gripper holds something: commanded (nearly) closed, yet it reads open by more
+    than ``HOLD_MARGIN_RAD`` (an object stops the fingers). Actuator vectors: joints, then
+    gripper. Servo readings only, so the env, the deploy loop and a real arm judge it alike.
+    False for a gripper that reads its command (``feedback: commanded``): its reading is the
+    pulse it was sent, "open" only while that pulse slews shut, never because a cube stopped
+    it (``held_seen`` judges it from the cameras)."""
+    grip = spec.gripper
+    state = _gripper_closed(spec, commanded_rad, reading_rad)
+    if grip is None or state is None or grip.feedback != "measured":
+        return False
+    return bool(state[0] and state[1])
+
+
+def held_seen(
+    spec: ArmSpec,
+    commanded_rad: np.ndarray,
+    reading_rad: np.ndarray,
+    tool_m: np.ndarray,
+    cube_m: np.ndarray,
+    blind_s: float,
+    was_holding: bool,
+) -> bool:
+    """A gripper that reads its command holds the cube, judged from the cameras: it was sent
+    closed and its echo reads closed (the close is done), and the cube's estimate is within
+    ``GRASP_NEAR_M`` of the tool's, or the cube is out of sight and the fingers held it the
+    period before (hidden in them, it moves with the tool: ``cube_estimate``). A cube seen
+    away from the tool was not taken, or was dropped. ``cube_m``: the tracker's estimate (held
+    at its last sighting while blind); actuator vectors: joints, then gripper."""
+    state = _gripper_closed(spec, commanded_rad, reading_rad)
+    if state is None or not state[0] or state[1]:
+        return False
+    if blind_s > 0.0 and was_holding:
+        return True
+    d = np.asarray(cube_m, dtype=float) - np.asarray(tool_m, dtype=float)
+    return bool(math.sqrt(float(d @ d)) < GRASP_NEAR_M)
+
+
+def _held_by_reading(
+    spec: ArmSpec,
+    commanded_rad: np.ndarray,
+    reading_rad: np.ndarray,
+    tool_m: np.ndarray,
+    cube_m: np.ndarray,
+    blind_s: float,
+    was_holding: bool,
+) -> bool:
+    return holding(spec, commanded_rad, reading_rad)
+
+
+# (spec, commanded, reading, tool, cube, blind_s, was_holding) -> holding
+HoldRule = Callable[..., bool]
+# How "holding" is judged, by the gripper reading's kind (``fused.HOLD_RULES`` compiles them).
+HOLD_RULES: dict[str, HoldRule] = {"measured": _held_by_reading, "commanded": held_seen}
+
+
+def judge_holding(
+    spec: ArmSpec,
+    commanded_rad: np.ndarray,
+    reading_rad: np.ndarray,
+    tool_m: np.ndarray,
+    cube_m: np.ndarray,
+    blind_s: float,
+    was_holding: bool,
+) -> bool:
+    """Whether the fingers hold the cube, from what this arm can know (``HOLD_RULES`` by the
+    gripper's reading kind): the env's grasp-aware estimate, deploy's success, put-down and
+    the shaping on the arm all ask this. ``was_holding``: the last period's judgement."""
+    kind = spec.gripper.feedback if spec.gripper is not None else "measured"
+    return HOLD_RULES[kind](spec, commanded_rad, reading_rad, tool_m, cube_m, blind_s, was_holding)
 
 
 def cube_estimate(
-    cube_m: np.ndarray, tool_m: np.ndarray, blind_s: float, is_holding: bool
-) -> np.ndarray:
-    """The cube tracker's prediction with a grasp model: a cube out of sight in fingers that
-    hold something moves with the tool (it is between them); otherwise it stays where it was
-    last seen (a cube at rest does not move). Without the first rule a lifted cube's estimate
-    stays on the table, and so does ``goal_delta``: the policy cannot see its lift."""
-    if blind_s > 0.0 and is_holding:
-        return np.asarray(tool_m, dtype=float)
-    return cube_m
+    cube_m: np.ndarray,
+    tool_m: np.ndarray,
+    blind_s: float,
+    is_holding: bool,
+    carried: bool = False,
+) -> tuple[np.ndarray, bool]:
+    """The cube tracker's prediction with a grasp model, and whether the cube is now carried
+    (the next period's ``carried``): a cube out of sight in fingers that hold something moves
+    with the tool (it is between them); otherwise it stays where it was last seen (a cube at
+    rest does not move). Without the first rule a lifted cube's estimate stays on the table, and
+    so does ``goal_delta``: the policy cannot see its lift.
+
+    Carried (the fingers held it last period with its estimate at the tool), a sighting more
+    than ``HELD_AWAY_M`` from the tool while they still hold is not the cube either: the cube in
+    the fingers is at the tool. On the mock arm the tracker's fit of a lifted cube, half hidden
+    by the fingers and seen by one camera, put it 3-9 cm below the tool in 10 of 283 sightings
+    (all while held); the policy took the cube for dropped and let go of it at the goal. (Not
+    before a carry: a gripper closing in empty air reads "open" for a few periods, and the cube
+    seen away on the table then is where it is.)"""
+    if not is_holding:
+        return cube_m, False
+    tool = np.asarray(tool_m, dtype=float)
+    d = np.asarray(cube_m, dtype=float) - tool
+    away = math.sqrt(float(d @ d)) > HELD_AWAY_M
+    if blind_s > 0.0 or (carried and away):
+        return tool, True
+    return cube_m, not away
 
 
 def percept_shaping(
     tool_m: np.ndarray, cube_m: np.ndarray, rest_z_m: float, is_holding: bool
 ) -> float:
     """``PickTask.shaping`` from what an arm without MuJoCo knows: the tool and cube estimates,
-    and for "both fingers on the cube" the servo readings' ``holding`` with the tool at the cube
-    (``holding`` alone is also true for the few periods a gripper closing in empty air takes to
-    read closed: a learner would be paid for snapping it shut anywhere). The same terms and
-    weights (``fused.grasp_shaping``), so a policy fine-tuned on the arm is paid as it was
-    trained."""
+    and for "both fingers on the cube" ``judge_holding`` with the tool at the cube (a measured
+    gripper's ``holding`` alone is also true for the few periods a gripper closing in empty air
+    takes to read closed: a learner would be paid for snapping it shut anywhere; a commanded
+    gripper's ``held_seen`` is the estimates, and pays an empty close right beside the cube
+    until the lift shows it). The same terms and weights (``fused.grasp_shaping``), so a policy
+    fine-tuned on the arm is paid as it was trained."""
     apart_m = float(np.linalg.norm(np.asarray(tool_m) - np.asarray(cube_m)))
     reach = -REACH_WEIGHT_PER_M * apart_m
     if not (is_holding and apart_m < GRASP_NEAR_M):
@@ -106,6 +211,7 @@ SUCCESS_M = 0.02
 BLIND_JUDGE_S = 0.5  # a real arm: a cube unseen this long is judged by the gripper, not the camera
 DROPPED_FROM_M = 0.02  # a cube that was this high and is back on the table was dropped
 HOLD_MARGIN_RAD = 0.1  # gripper reading this far open of "closed" while commanded closed: holding
+HELD_AWAY_M = 0.03  # a sighting this far from the tool is not the cube the fingers hold
 PUT_DOWN_ABOVE_M = 0.003  # a held cube is set down with the tool this far above its grasp height
 
 
@@ -114,7 +220,9 @@ class PickContract(DeployContract):
     episode starts once it is seen and still, and latches the lift goal above that sighting.
     Success is the cube within 2 cm of the lift goal at the end: from the truth in sim and mock;
     on a real arm from the cube tracker, or, while the fingers hide it, from the tool position
-    when the gripper reads blocked (holding something) while commanded closed."""
+    while the fingers hold it (``judge_holding``: a measured gripper reads blocked while
+    commanded closed; one that reads its command is judged from the estimates, ``held_seen``,
+    and so cannot tell an empty close beside the cube from a grasp until the lift shows it)."""
 
     task = "pick"
     objects = ("cube",)
@@ -128,7 +236,13 @@ class PickContract(DeployContract):
         self._max_lift_m = 0.0
         self._grasped_ever = False
         self._grasped_now = False
-        self._holding_now = False  # the servo readings say the fingers hold something
+        self._holding_now = False  # the fingers hold the cube (``judge_holding``), last period
+        self._judged_holding = False  # the same, on ``score``'s views
+        self._carried = False  # the last cube estimate was the tool (``cube_estimate``)
+        # the servo readings and targets of ``observe_arm``, and the last percept's tool, cube
+        # estimate (as tracked) and blind time: ``judge_holding``'s inputs
+        self._arm: tuple[np.ndarray, np.ndarray] | None = None
+        self._percept: tuple[np.ndarray, np.ndarray, float] | None = None
         self._blind_periods = 0
         self._periods = 0
         self._max_blind_s = 0.0
@@ -143,15 +257,21 @@ class PickContract(DeployContract):
     def begin(self, percept: Percept) -> None:
         _, cube = need(percept, "cube")
         self.goal = lift_goal(cube)
-        self._holding_now = False
+        self._holding_now = self._carried = False
 
     def observe_arm(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> None:
-        self._holding_now = holding(self.spec, commanded_rad, reading_rad)
+        self._arm = (np.array(reading_rad, dtype=float), np.array(commanded_rad, dtype=float))
 
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
         tool, cube = need(percept, "cube")
         blind = percept.blind_s("cube")
-        cube = cube_estimate(cube, tool, blind, self._holding_now)
+        self._percept = (tool, cube, blind)
+        if self._arm is not None:
+            reading, commanded = self._arm
+            self._holding_now = judge_holding(
+                self.spec, commanded, reading, tool, cube, blind, self._holding_now
+            )
+        cube, self._carried = cube_estimate(cube, tool, blind, self._holding_now, self._carried)
         self._periods += 1
         self._blind_periods += int(blind > 0.0)
         self._max_blind_s = max(self._max_blind_s, blind)
@@ -176,8 +296,13 @@ class PickContract(DeployContract):
         """A held cube goes back on the table where the tool is: the tool down to the height it
         grasped at (the cube's rest, ``PUT_DOWN_ABOVE_M`` higher), the gripper still closed.
         Homing with the cube in the fingers swung it over the table, and a park with it failed
-        (the fingers could not close on the rest pose's tolerance)."""
-        if not holding(self.spec, commanded_rad, reading_rad):
+        (the fingers could not close on the rest pose's tolerance). A gripper that reads its
+        command is judged on the last percept (``judge_holding``)."""
+        tool_m, cube_m, blind_s = self._percept or (np.zeros(3), np.full(3, np.inf), 0.0)
+        held = judge_holding(
+            self.spec, commanded_rad, reading_rad, tool_m, cube_m, blind_s, self._holding_now
+        )
+        if not held:
             return None
         spec, n = self.spec, self.spec.n_joints
         tool = spec.forward_kinematics(np.asarray(reading_rad[:n], dtype=float))
@@ -192,19 +317,27 @@ class PickContract(DeployContract):
         return target
 
     def _holding(self, view: View) -> bool:
+        """``judge_holding`` on ``view`` (once per period: a commanded gripper's judgement
+        carries over from the last one)."""
         if view.commanded_rad is None:
+            self._judged_holding = False
             return False
-        return holding(self.spec, view.commanded_rad, view.actuators_rad)
+        self._judged_holding = judge_holding(
+            self.spec, view.commanded_rad, view.actuators_rad, view.tool_m,
+            view.objects["cube"], view.blind_s.get("cube", 0.0), self._judged_holding,
+        )  # fmt: skip
+        return self._judged_holding
 
     def score(self, view: View, step: int) -> str | None:
         cube = view.objects["cube"]
+        held = self._holding(view)
         blind = view.blind_s.get("cube", 0.0) > BLIND_JUDGE_S
-        if not view.truth and blind and self._holding(view):
+        if not view.truth and blind and held:
             cube = view.tool_m  # in the fingers, out of sight
         if self._true_goal is None:  # the first judged period: where the cube rests
             self._true_goal = lift_goal(cube) if view.truth else self.goal
             self._rest_z_m = float(cube[2])
-        grasped = view.grasped if view.grasped is not None else self._holding(view)
+        grasped = view.grasped if view.grasped is not None else held
         self._grasped_now = bool(grasped)
         self._grasped_ever |= self._grasped_now
         self._lift_m = float(cube[2]) - self._rest_z_m
@@ -246,6 +379,8 @@ class PickTask(Task):
     # out of sight) against the lift goal.
     goal_rule = "object_to_goal"
     hold_margin_rad = HOLD_MARGIN_RAD
+    grasp_near_m = GRASP_NEAR_M  # a gripper that reads its command: ``held_seen``
+    held_away_m = HELD_AWAY_M  # ``cube_estimate``: a sighting away from holding fingers
     blind_cap_s = BLIND_CAP_S
     shaping_rule = "grasp_lift"  # ``shaping``, compiled into the step's observation call
 
@@ -441,6 +576,9 @@ class PickServo:
     * **lift** to the goal once the gripper was sent fully closed and reads blocked by the
       cube (``holding``'s rule, on the true reading). A gripper that closed on nothing opens
       and the pick starts over.
+
+    It reads the true gripper angle, not the policy's reading, so it teaches on a spec whose
+    gripper reads its command as well (``tests/sim2real/envs/test_commanded_readings.py``).
 
     Measured (``bench/pick_teacher.py``): 100 % of 500 episodes under DR ``default``.
     """

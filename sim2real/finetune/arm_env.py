@@ -278,7 +278,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         from sim2real.policies import resolve_policy
 
         meta = load_policy(resolve_policy(policy_ref)).meta
-        meta.check_spec(spec.fingerprint())
+        meta.check_spec(spec)
         io = policy_io(spec, meta)
         config = config or ArmEnvConfig(rate_hz=meta.control_hz)
         if abs(meta.control_hz - config.rate_hz) > 1e-9:

@@ -1,15 +1,16 @@
 """The learner process: the SB3 model, its replay buffer, critic and optimisers, off the loop.
 
-The control loop must never wait for a gradient. So the learner is another process (spawned,
-not forked: the loop's process holds threads, a serial port and possibly real-time priority), at
-a lower CPU priority (``nice``) and normal scheduling. One queue carries the loop's transitions
-and commands, in order, so a checkpoint holds exactly the transitions sent before it; the actor's
-weights come back through shared memory (one flat float32 vector, a version counter and a lock
-the loop only ever *tries*), so the loop picks up new weights between periods without blocking.
+The control loop must never wait for a gradient. So the learner is another process (a
+``deploy.child.ChildProcess``: started fresh, not forked, since the loop's process holds threads,
+a serial port and possibly real-time priority), at a lower CPU priority (``nice``) and normal
+scheduling. One channel carries the loop's transitions (posted: the loop never waits) and
+commands, in order, so a checkpoint holds exactly the transitions sent before it; the actor's
+weights come back through shared memory (one flat float32 vector and a version counter under the
+runtime's sequence lock, which the loop reads without waiting), so the loop picks up new weights
+between periods without blocking.
 
-The learner ignores SIGINT and SIGTERM (a Ctrl-C reaches the whole foreground group: the loop
-decides, parks the arm, asks for a checkpoint, then stops it) and dies with its parent
-(``PR_SET_PDEATHSIG`` on Linux, and a parent check every few hundred milliseconds).
+The learner ignores SIGINT and SIGTERM (the loop decides: it parks the arm, asks for a
+checkpoint, then stops it) and dies with its parent, as every child of the runtime does.
 
 ``--mix-sim-buffer``: a second buffer of sim transitions, collected at start-up from the source
 run's own env with its own actor (exploring), is sampled 50/50 with the online buffer in every
@@ -18,20 +19,16 @@ batch (symmetric sampling, as in RLPD, Ball et al. 2023).
 
 from __future__ import annotations
 
-import contextlib
 import io
 import logging
 import math
-import os
-import queue
-import signal
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from sim2real.deploy import child
 from sim2real.errors import Sim2RealError
 from sim2real.finetune.relabel import EpisodeIndex, GoalFields, Relabeler
 
@@ -40,6 +37,10 @@ log = logging.getLogger(__name__)
 MAX_ACTOR_FLOATS = 4_000_000  # the shared actor vector (16 MB): far above any MLP we train
 TRAIN_CHUNK = 4  # gradient steps between two looks at the queue
 READY_TIMEOUT_S = 300.0  # loading torch + SB3 (+ a sim buffer) on a loaded 2-core machine
+# the weights block: a float64 header [lock, version, gradient updates, actor size], then the
+# actor as float32
+_LOCK, _VERSION, _UPDATES, _SIZE = range(4)
+_W_HEADER = 4
 
 
 class LearnerError(Sim2RealError):
@@ -105,31 +106,6 @@ class RewardShaper:
 
 
 # ---- the learner's side ------------------------------------------------------------------------
-def _detach_from_loop(nice: int, parent_pid: int) -> None:
-    """Lower priority than the loop, normal scheduling, no terminal signals, one BLAS thread,
-    die with it."""
-    with contextlib.suppress(OSError, AttributeError):
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # never inherit FIFO
-    with contextlib.suppress(OSError):
-        os.nice(nice)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    # numpy's BLAS at one thread, as torch's (set_num_threads(1)): an idle OpenBLAS worker spins
-    # on sched_yield, a share of the core the loop's children need (a learner without it works)
-    with contextlib.suppress(Exception):
-        from threadpoolctl import threadpool_limits
-
-        threadpool_limits(limits=1, user_api="blas")
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        with contextlib.suppress(OSError, AttributeError):
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
-    if os.getppid() != parent_pid:  # the parent died before the prctl
-        os._exit(1)
-
-
 def _mixed_buffer_class() -> Any:
     import torch as th
     from stable_baselines3.common.buffers import ReplayBuffer
@@ -372,83 +348,99 @@ class Learner:
         return sim
 
 
-def run_learner(
-    cfg: LearnerConfig, inbox: Any, outbox: Any, shared: Any, lock: Any, version: Any,
-    updates: Any, parent_pid: int,
-) -> None:  # fmt: skip
-    """The learner process's main: load, publish the first weights, then learn until "stop"."""
-    _detach_from_loop(cfg.nice, parent_pid)
+class _Weights:
+    """The actor's weights in shared memory: the learner publishes, the loop reads newer ones
+    without waiting (a read during a write is skipped until the next period)."""
+
+    def __init__(self, name: str | None = None) -> None:
+        self.block = child.SharedBlock(8 * _W_HEADER + 4 * MAX_ACTOR_FLOATS, name)
+        self.header = self.block.array(_W_HEADER)
+        self.actor = self.block.array(MAX_ACTOR_FLOATS, np.float32, offset=8 * _W_HEADER)
+        if name is None:
+            self.header[:] = 0.0
+
+    def publish(self, flat: np.ndarray) -> None:
+        with child.seqlock(self.header, _LOCK):
+            self.actor[: flat.size] = flat
+            self.header[_SIZE] = flat.size
+            self.header[_VERSION] += 1
+
+    def read(self) -> tuple[int, np.ndarray] | None:
+        """(version, a copy of the actor), or None while the learner writes it."""
+        h = self.header
+        return child.read_consistent(
+            h, lambda: (int(h[_VERSION]), self.actor[: int(h[_SIZE])].copy()), _LOCK, tries=1
+        )
+
+    def close(self) -> None:
+        del self.header, self.actor  # the views go before the buffer closes
+        self.block.close()
+
+
+def _serve(channel: child.ChildChannel) -> None:
+    """The learner process: load, publish the first weights, then learn until stopped."""
+    cfg, weights_name = channel.job
+    learner = Learner(cfg)
+    flat = learner.flat_actor()
+    if flat.size > MAX_ACTOR_FLOATS:
+        raise LearnerError(f"the actor has {flat.size} weights; at most {MAX_ACTOR_FLOATS}")
+    weights = _Weights(weights_name)
+    weights.publish(flat)
+    weights.header[_UPDATES] = learner.updates
+    channel.ready(
+        {"kind": learner.kind, "shapes": learner.shapes, "size": int(flat.size),
+         "noise_std": learner.noise_std, "online": int(learner.buffer.size()),
+         "updates": learner.updates,
+         "sim": int(learner.buffer.sim.size()) if learner.buffer.sim else 0}
+    )  # fmt: skip
     try:
-        learner = Learner(cfg)
-        flat = learner.flat_actor()
-        if flat.size > MAX_ACTOR_FLOATS:
-            raise LearnerError(f"the actor has {flat.size} weights; at most {MAX_ACTOR_FLOATS}")
-        view = np.frombuffer(shared, dtype=np.float32)
-
-        def publish() -> None:
-            with lock:
-                view[: flat.size] = learner.flat_actor()
-                version.value += 1
-
-        publish()
-        updates.value = learner.updates
-        outbox.put(
-            ("ready", {"kind": learner.kind, "shapes": learner.shapes, "size": int(flat.size),
-                       "noise_std": learner.noise_std, "online": int(learner.buffer.size()),
-                       "updates": learner.updates,
-                       "sim": int(learner.buffer.sim.size()) if learner.buffer.sim else 0})
-        )  # fmt: skip
-        _serve(learner, cfg, inbox, outbox, publish, updates, parent_pid)
-    except BaseException as exc:  # the loop reads it between episodes and stops cleanly
-        with contextlib.suppress(Exception):
-            outbox.put(
-                ("error", f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
-            )
-        raise
+        _learn(learner, cfg, channel, weights)
+    finally:
+        weights.close()
 
 
-def _serve(
-    learner: Learner, cfg: LearnerConfig, inbox: Any, outbox: Any, publish: Any, updates: Any,
-    parent_pid: int,
-) -> None:  # fmt: skip
+def _requests(channel: child.ChildChannel, wait_s: float) -> list[Any]:
+    """What the loop sent: the first within ``wait_s``, then up to 255 more already there."""
+    first = channel.receive(wait_s)
+    requests = [] if first is None else [first]
+    while requests and len(requests) < 256:
+        more = channel.receive(0.0)
+        if more is None:
+            break
+        requests.append(more)
+    return requests
+
+
+def _learn(
+    learner: Learner, cfg: LearnerConfig, channel: child.ChildChannel, weights: _Weights
+) -> None:
     pending = 0.0  # gradient steps owed (utd per online transition once warm)
     cap = max(cfg.utd * cfg.publish_every * 5, TRAIN_CHUNK)
     since_publish = 0
     trained_since_publish = False
-    while True:
-        warm = learner.buffer.size() >= cfg.learning_starts
-        can_train = warm and pending >= 1
-        messages = []
-        try:
-            messages.append(inbox.get_nowait() if can_train else inbox.get(timeout=0.2))
-            while len(messages) < 256:
-                messages.append(inbox.get_nowait())
-        except queue.Empty:
-            pass
-        if os.getppid() != parent_pid:
-            return
-        for msg in messages:
-            kind = msg[0]
-            if kind == "t":
-                _, obs, action, reward, next_obs, done = msg
-                learner.add(obs, action, reward, next_obs, done)
+    while not channel.stopping:
+        can_train = learner.buffer.size() >= cfg.learning_starts and pending >= 1
+        for request in _requests(channel, 0.0 if can_train else 0.2):
+            if request.op == "t":
+                learner.add(*request.args)
                 since_publish += 1
                 if learner.buffer.size() >= cfg.learning_starts:
                     pending = min(pending + cfg.utd, cap)
-            elif kind == "save":
-                _, model_paths, replay_path = msg
-                learner.save(model_paths, replay_path)
-                outbox.put(("saved", learner.updates, int(learner.buffer.size())))
-            elif kind == "stop":
-                return
+            elif request.op == "save":
+                learner.save(*request.args)
+                channel.answer((learner.updates, int(learner.buffer.size())))
+            else:
+                raise LearnerError(f"unknown request {request.op!r}; valid: ['save', 't']")
+        if channel.stopping:
+            return
         if learner.buffer.size() >= cfg.learning_starts and pending >= 1:
             k = min(int(pending), TRAIN_CHUNK)
             learner.train(k)
             pending -= k
-            updates.value = learner.updates
+            weights.header[_UPDATES] = learner.updates
             trained_since_publish = True
         if since_publish >= cfg.publish_every and trained_since_publish:
-            publish()
+            weights.publish(learner.flat_actor())
             since_publish = 0
             trained_since_publish = False
 
@@ -458,116 +450,78 @@ class LearnerHandle:
     """The loop's end: send transitions, take new weights without blocking, checkpoint, stop."""
 
     def __init__(self, cfg: LearnerConfig) -> None:
-        import multiprocessing as mp
-
-        ctx = mp.get_context("spawn")
         self.cfg = cfg
-        self.inbox = ctx.Queue()
-        self.outbox = ctx.Queue()
-        self.shared = ctx.RawArray("f", MAX_ACTOR_FLOATS)
-        self.lock = ctx.Lock()
-        self.version = ctx.Value("Q", 0, lock=False)
-        self.updates_value = ctx.Value("Q", 0, lock=False)
-        self.process = ctx.Process(
-            target=run_learner,
-            args=(cfg, self.inbox, self.outbox, self.shared, self.lock, self.version,
-                  self.updates_value, os.getpid()),
-            name="sim2real-learner",
-            daemon=True,
+        self._weights = _Weights()
+        self._child = child.ChildProcess(
+            "learner process", "sim2real.finetune.learner", (cfg, self._weights.block.name),
+            start_timeout_s=READY_TIMEOUT_S, stop_timeout_s=10.0, nice=cfg.nice,
+            error=LearnerError,
         )  # fmt: skip
         self._seen = 0
+        self._closed = False
         self.info: dict[str, Any] = {}
-        self.process.start()
-        # the queue's feeder thread starts on the first put: here, at normal priority, not
-        # inside the loop's real-time block (threads started there inherit SCHED_FIFO)
-        self.inbox.put(("hello",))
+        self._child.launch()  # it loads torch while the caller goes on
 
     @property
     def pid(self) -> int | None:
-        return self.process.pid
+        return self._child.pid
 
     @property
     def updates(self) -> int:
-        return int(self.updates_value.value)
+        return int(self._weights.header[_UPDATES])
 
     def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> dict[str, Any]:
-        msg = self._reply(timeout_s, "start")
-        if msg[0] != "ready":
-            raise LearnerError(f"the learner answered {msg[0]!r} instead of starting")
-        self.info = dict(msg[1])
+        self.info = dict(self._child.wait_ready(timeout_s))
         return self.info
 
     def initial_weights(self) -> np.ndarray:
-        with self.lock:
-            self._seen = int(self.version.value)
-            return np.frombuffer(self.shared, np.float32, count=self.info["size"]).copy()
+        """The actor the learner published when it became ready."""
+        while True:
+            read = self._weights.read()
+            if read is not None:
+                self._seen, flat = read
+                return flat
+            self._child.check_alive()
+            time.sleep(0.001)  # it is publishing a newer one right now
 
     def new_weights(self) -> np.ndarray | None:
         """The newest published actor, or None if there is none newer or the learner is
         writing it right now (the loop never waits: it tries again next period)."""
-        if int(self.version.value) == self._seen or not self.lock.acquire(block=False):
+        if int(self._weights.header[_VERSION]) == self._seen:
             return None
-        try:
-            self._seen = int(self.version.value)
-            return np.frombuffer(self.shared, np.float32, count=self.info["size"]).copy()
-        finally:
-            self.lock.release()
+        read = self._weights.read()
+        if read is None:
+            return None
+        self._seen, flat = read
+        return flat
 
     def send(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
              done: bool) -> None:  # fmt: skip
-        self.inbox.put(("t", obs, action, float(reward), next_obs, bool(done)))
+        self._child.post("t", obs, action, float(reward), next_obs, bool(done))
 
     def check(self) -> None:
-        """Between episodes: a learner that failed or died is an error here."""
-        try:
-            msg = self.outbox.get_nowait()
-        except queue.Empty:
-            msg = None
-        if msg is not None and msg[0] == "error":
-            raise LearnerError(f"the learner failed: {msg[1]}")
-        if not self.process.is_alive():
-            raise LearnerError(f"the learner process exited ({self.process.exitcode})")
+        """Between episodes: a learner that failed or died is an error here, in one line."""
+        self._child.check_alive()
 
     def checkpoint(self, model_paths: list[str], replay_path: str, timeout_s: float = 120.0
                    ) -> tuple[int, int]:  # fmt: skip
-        """Ask for a checkpoint of everything sent so far; (updates, online transitions)."""
-        self.inbox.put(("save", model_paths, replay_path))
-        msg = self._reply(timeout_s, "checkpoint")
-        if msg[0] != "saved":
-            raise LearnerError(f"the learner answered {msg[0]!r} to a checkpoint")
-        return int(msg[1]), int(msg[2])
+        """A checkpoint of everything sent so far; (updates, online transitions)."""
+        updates, online = self._child.call("save", model_paths, replay_path, timeout_s=timeout_s)
+        return int(updates), int(online)
 
-    def _reply(self, timeout_s: float, what: str) -> tuple[Any, ...]:
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                msg = self.outbox.get(timeout=0.2)
-            except queue.Empty:
-                if not self.process.is_alive():
-                    raise LearnerError(
-                        f"the learner process exited ({self.process.exitcode}) during {what}"
-                    ) from None
-                if time.monotonic() > deadline:
-                    raise LearnerError(
-                        f"the learner did not answer ({what}) in {timeout_s:g} s"
-                    ) from None
-                continue
-            if msg[0] == "error":
-                raise LearnerError(f"the learner failed during {what}: {msg[1]}")
-            return tuple(msg)
+    def close(self) -> None:
+        """Stop it (asked, then killed) and release the weights. Idempotent."""
+        self._child.stop()
+        if not self._closed:
+            self._closed = True
+            self._weights.close()
 
-    def close(self, timeout_s: float = 10.0) -> None:
-        """Stop it (a "stop" message, then terminate, then kill) and release the queues."""
-        if self.process.is_alive():
-            with contextlib.suppress(Exception):
-                self.inbox.put(("stop",))
-            self.process.join(timeout_s)
-        if self.process.is_alive():
-            self.process.terminate()
-            self.process.join(2.0)
-        if self.process.is_alive():
-            self.process.kill()
-            self.process.join(2.0)
-        for q in (self.inbox, self.outbox):
-            q.cancel_join_thread()
-            q.close()
+
+def main() -> None:
+    """The learner process's entry point (``deploy.child.run_child``)."""
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    child.run_child(_serve)
+
+
+if __name__ == "__main__":
+    main()

@@ -10,6 +10,16 @@ the palm cover its markers during a grasp, which is the normal case) or at rando
 (``point_dropout_prob``: glare, motion blur). A hidden object's estimate holds its last value, as
 the deploy loop's still-object Kalman tracker coasts, and the time since it was last seen is
 reported: what ``calibration.cube.StereoCubeTracker`` gives the deploy loop.
+
+A reading is *measured* (a sensor on the horn: the true joint through bias, noise and
+quantisation) or *commanded* (``hardware.spec.FEEDBACK_KINDS``: a board driving a bare PWM servo
+can only echo the pulse it sent). A commanded reading is that echo: the command the host sent
+(after its safety filter), slewed as the firmware slews its output pulse (at most
+``slew_rad_per_step`` per period: the spec's speed times the period; the firmware's µs rate is
+its floor), in the quantisation of the reading's units, without the joint-calibration bias (the
+host converts the echoed pulse back with the very map it sent with: a calibration error moves the
+horn, which the kinematics DR models, never the echo) and without noise: a digital echo is exact. It shares the delay line: the host reads every position
+in one state frame. It cannot show lag, droop, a stall or a grasped cube.
 """
 
 from __future__ import annotations
@@ -50,7 +60,10 @@ def direct_keys(ids: ModelIds) -> list[DirectKey]:
 
 
 class SensorModel:
-    """Applies per-episode sensing parameters to true joint angles and point positions."""
+    """Applies per-episode sensing parameters to true joint angles and point positions.
+
+    ``commanded`` (n,) bool: readings that echo the sent command (None: all measured), each
+    moving at most ``slew_rad_per_step`` (n,) per period towards it (the board's output slew)."""
 
     def __init__(
         self,
@@ -60,8 +73,28 @@ class SensorModel:
         base_p_cam_m: np.ndarray,
         focal_px: float,
         baseline_m: float,
+        commanded: np.ndarray | None = None,
+        slew_rad_per_step: np.ndarray | None = None,
     ) -> None:
         self._n = n_joints
+        self.commanded = np.zeros(n_joints, dtype=bool)
+        self.slew_rad_per_step = np.zeros(n_joints)
+        if commanded is not None:
+            self.commanded = np.array(commanded, dtype=bool).reshape(-1)
+            if self.commanded.shape != (n_joints,):
+                raise ValueError(f"commanded must have shape ({n_joints},), got {commanded!r}")
+            slew = np.zeros(n_joints) if slew_rad_per_step is None else slew_rad_per_step
+            self.slew_rad_per_step = np.array(slew, dtype=float).reshape(-1)
+            ok = self.slew_rad_per_step.shape == (n_joints,) and bool(
+                np.all(self.slew_rad_per_step[self.commanded] > 0)
+            )
+            if not ok:
+                raise ValueError(
+                    "slew_rad_per_step must give every commanded reading a step > 0, got "
+                    f"{slew_rad_per_step!r}"
+                )
+        self.any_commanded = bool(self.commanded.any())
+        self._echo: np.ndarray | None = None  # the board's output pulse (rad) per reading
         self.resolution_rad = resolution_rad
         self.inv_resolution = 1.0 / resolution_rad if resolution_rad > 0 else 0.0
         self.base_R_cam = np.asarray(
@@ -144,17 +177,48 @@ class SensorModel:
             self._noise = NoiseBuffer(dim)
         return self._noise
 
+    def echo(self, sent_rad: np.ndarray) -> np.ndarray:
+        """The board's output pulses (n,) after one more period of slewing towards ``sent_rad``
+        (n,), as the firmware's limiter: the target once within a step, else one step towards
+        it. The first call after ``reset`` starts at ``sent_rad`` (attached at the start
+        pulse). Entries of measured readings are not used."""
+        sent = np.asarray(sent_rad, dtype=float)
+        if self._echo is None:
+            self._echo = sent.copy()
+            return self._echo.copy()
+        d = sent - self._echo
+        step = self.slew_rad_per_step
+        moved = np.where(d > 0, self._echo + step, self._echo - step)
+        self._echo = np.where(np.abs(d) <= step, sent, moved)
+        return self._echo.copy()
+
     def read(
-        self, q_rad: np.ndarray, points_m: np.ndarray, rng: np.random.Generator
+        self,
+        q_rad: np.ndarray,
+        points_m: np.ndarray,
+        rng: np.random.Generator,
+        sent_rad: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Joint readings (n,) and point estimates (k, 3) from one block of pre-drawn noise:
         the reference the arm envs' compiled step (``sim2real.envs.fused.observe``) is held to
-        (``tests/sim2real/envs/test_fused.py``). ``read_joints``/``read_points``: per-call draws."""
+        (``tests/sim2real/envs/test_fused.py``). ``read_joints``/``read_points``: per-call draws.
+        ``sent_rad`` (n,): what the host last sent, which commanded readings echo (``echo``);
+        the noise block is drawn whole either way, so the generator moves alike."""
         n, k = self._n, len(points_m)
         z = self.draw(k, rng)
-        joints = q_rad + self.joint_bias
+        if self.any_commanded:
+            if sent_rad is None:
+                raise ValueError("commanded readings need sent_rad, the command they echo")
+            q_rad = np.where(self.commanded, self.echo(sent_rad[:n]), q_rad)
+        bias = (
+            np.where(self.commanded, 0.0, self.joint_bias)
+            if self.any_commanded
+            else self.joint_bias
+        )
+        joints = q_rad + bias
         if self.joint_noise > 0:
-            joints += self.joint_noise * z[:n]
+            noisy = joints + self.joint_noise * z[:n]
+            joints = np.where(self.commanded, joints, noisy) if self.any_commanded else noisy
         if self.resolution_rad > 0:
             joints = np.rint(joints * self.inv_resolution) * self.resolution_rad
         points = points_m + self.pos_bias
@@ -197,5 +261,6 @@ class SensorModel:
     def reset(self) -> None:
         self._history.clear()
         self._last_seen = None
+        self._echo = None
         if self._noise is not None:
             self._noise.clear()

@@ -57,14 +57,20 @@ def _compile_cmd(out: Path, sources: list[Path], extra: list[str] | None = None)
 
 @pytest.fixture(scope="session")
 def firmware_build(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """The firmware core's host test, sketch test and replayer, built with g++ (in parallel)."""
+    """The firmware core's host test, sketch test and replayer, built with g++ (in parallel); the
+    replayer twice: the committed header (bare PWM servos) and the pot build of the shipped spec
+    (every actuator's potentiometer on an analog input)."""
+    from hardware.firmware.limits import write_limits_header
+
     if shutil.which("g++") is None:
         pytest.skip("g++ is not installed: the firmware core cannot be compiled on this machine")
     out = tmp_path_factory.mktemp("arm3")
+    pots_header = write_limits_header(out / "limits_pots.h", load_spec(), source="test pot build")
     core = [FIRMWARE / "src" / "arm3_core.cpp", FIRMWARE / "src" / "s2r_crc.cpp"]
     bins = {
         "test_core": [FIRMWARE / "tests" / "test_core.cpp", *core],
         "replay": [FIRMWARE / "tests" / "replay.cpp", *core],
+        "replay_pots": [FIRMWARE / "tests" / "replay.cpp", *core],
         "test_sketch": [
             FIRMWARE / "tests" / "test_sketch.cpp",
             *core,
@@ -74,6 +80,8 @@ def firmware_build(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     procs = {}
     for name, sources in bins.items():
         extra = ["-I", str(FIRMWARE / "tests" / "stubs")] if name == "test_sketch" else None
+        if name == "replay_pots":
+            extra = [f'-DARM3_LIMITS_HEADER="{pots_header}"']
         cmd = _compile_cmd(out / name, sources, extra)
         procs[name] = (cmd, subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True))
     try:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hardware.arm import arrival_tolerance_rad, off_pose_limit_rad, settle_window_s
-from hardware.errors import HardwareError
+from hardware.errors import HardwareError, SafetyError, StallError
 from hardware.plant import Plant
 from hardware.serial_arm import SerialArm
 from hardware.spec import ArmSpec
@@ -59,21 +59,51 @@ def test_a_drooping_arm_homes_with_a_warning_and_keeps_working(
         assert emu.torque_enabled().all()
 
 
-def test_an_arm_that_does_not_move_is_stopped_safely(quick_spec: ArmSpec) -> None:
-    stuck = Plant(quick_spec.with_servo(max_speed_rad_s=0.005))  # seized gearbox
+def test_a_seized_arm_at_rest_is_held_where_it_is(quick_spec: ArmSpec) -> None:
+    """A seized gearbox (the servos barely turn): the stall is caught, named, and the arm held
+    with the torque on where it rests (it is at park: parking asks nothing of it)."""
+    stuck = Plant(quick_spec.with_servo(max_speed_rad_s=0.005))
     with stuck.emulator("s2r") as emu, SerialArm(quick_spec, emu.port, "s2r") as arm:
-        with pytest.raises(HardwareError, match=r"did not reach the pose: .* stopped") as info:
+        with pytest.raises(StallError, match=r"^stall: \w+ is .* held, then parked") as info:
             arm.move_to(quick_spec.actuator_home_rad, timeout_s=30.0)
-        assert "\n" not in str(info.value) and "torque is off" in str(info.value)
-        assert not arm.is_enabled and arm.estop_reason is not None
+        assert "\n" not in str(info.value)
+        assert arm.is_enabled and arm.estop_reason is not None
+        emu.sync()
+        assert emu.torque_enabled().all()
+        with pytest.raises(SafetyError, match="stopped after a fault"):
+            arm.command(quick_spec.actuator_home_rad)
+
+
+def test_an_arm_that_cannot_move_has_its_torque_cut(quick_spec: ArmSpec) -> None:
+    """Jammed away from park: the base stalls and is held where it is (a stalled joint stops
+    pushing), but the shoulder and elbow cannot park either, so the torque goes off (the one
+    fault where letting go is the safe state) and the message says so."""
+    with (
+        Plant.nominal(quick_spec).emulator("s2r") as emu,
+        SerialArm(quick_spec, emu.port, "s2r") as arm,
+    ):
+        arm.home()
+        emu.jam("base_yaw", "shoulder", "elbow")
+        goal = quick_spec.actuator_home_rad + np.array([0.5, 0.0, 0.0, 0.0])
+        with pytest.raises(
+            HardwareError, match=r"stall: base_yaw .* it cannot move .* torque is off"
+        ):
+            arm.move_to(goal, timeout_s=30.0)
+        assert not arm.is_enabled
         emu.sync()
         assert not emu.torque_enabled().any()
 
 
-def test_a_timeout_also_leaves_torque_off(quick_spec: ArmSpec) -> None:
-    slow = Plant(replace(quick_spec, servo=replace(quick_spec.servo, max_speed_rad_s=0.05)))
+def test_a_timeout_holds_and_parks_with_the_torque_on(quick_spec: ArmSpec) -> None:
+    """A slow arm (1 rad/s) still moving when move_to's time is up: no stall (it moves), so the
+    fault stop holds and parks it slowly, torque on, and the latch waits for enable()."""
+    slow = Plant(replace(quick_spec, servo=replace(quick_spec.servo, max_speed_rad_s=1.0)))
     with slow.emulator("s2r") as emu, SerialArm(quick_spec, emu.port, "s2r") as arm:
-        with pytest.raises(HardwareError, match=r"within 0.3 s: .* torque is off"):
+        with pytest.raises(HardwareError, match=r"within 0.3 s: .* held, then parked slowly"):
             arm.move_to(quick_spec.actuator_home_rad, timeout_s=0.3)
         emu.sync()
-        assert not emu.torque_enabled().any() and not arm.is_enabled
+        assert emu.torque_enabled().all() and arm.is_enabled
+        park = quick_spec.actuator_park_rad
+        np.testing.assert_allclose(arm.read_state().positions_rad, park, atol=0.13)
+        arm.enable()  # clears the latch
+        arm.command(park)

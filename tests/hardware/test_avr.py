@@ -13,7 +13,7 @@ import json
 import os
 import random
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -30,7 +30,7 @@ from hardware.firmware import avr
 from hardware.firmware.limits import firmware_limits
 from hardware.protocols import s2r
 from hardware.serial_arm import SerialArm
-from hardware.spec import ArmSpec
+from hardware.spec import PWM_SPEC_PATH, ArmSpec, load_spec
 
 _MISSING = avr.missing_toolchain()
 # CI sets SIM2REAL_REQUIRE_AVR=1: there a missing toolchain fails these tests instead
@@ -79,6 +79,12 @@ def avr_spec(quick_spec: ArmSpec) -> ArmSpec:
     return replace(quick_spec, safety=replace(quick_spec.safety, watchdog_timeout_s=2.0))
 
 
+@pytest.fixture(scope="session")
+def avr_pwm_spec(avr_spec: ArmSpec) -> ArmSpec:
+    """avr_spec on bare PWM servos: the committed build, whose readings are the outputs."""
+    return avr_spec.with_feedback("commanded")
+
+
 class TestAvrContract(ArmContract):
     """The same contract as the Python emulator's, against the .elf in simavr."""
 
@@ -97,9 +103,24 @@ class TestAvrContract(ArmContract):
         return EmulatorProbe(emulator, arm.calibration)  # type: ignore[arg-type]
 
 
+class TestAvrPwmContract(TestAvrContract):
+    """The committed build on bare PWM servos: every reading is the commanded pulse."""
+
+    @pytest.fixture
+    def emulator(self, avr_pwm_spec: ArmSpec, make_avr: Callable[..., AvrEmulator]) -> AvrEmulator:
+        return make_avr(avr_pwm_spec)
+
+    @pytest.fixture
+    def arm(self, avr_pwm_spec: ArmSpec, emulator: AvrEmulator) -> Iterator[SerialArm]:
+        arm = SerialArm(avr_pwm_spec, emulator.port, protocol="s2r", timeout_s=0.2)
+        yield arm
+        arm.close()
+
+
 def test_pulses_are_the_firmware_outputs_and_stop_when_detached(
-    avr_spec: ArmSpec, make_avr: Callable[..., AvrEmulator]
+    avr_pwm_spec: ArmSpec, make_avr: Callable[..., AvrEmulator]
 ) -> None:
+    avr_spec = avr_pwm_spec  # readings are the outputs: compare them with the pins
     emu = make_avr(avr_spec)
     limits = firmware_limits(avr_spec)
     with SerialArm(avr_spec, emu.port, protocol="s2r", timeout_s=0.2) as arm:
@@ -187,8 +208,13 @@ def _traffic(seed: int, n: int) -> list[tuple[float, bytes]]:
         if kind < 0.30:
             payload = b"".join(rng.randrange(300, 2700).to_bytes(2, "little") for _ in range(n))
             data, moves = frame(s2r.SET_TARGETS, payload), True
-        elif kind < 0.36:
+        elif kind < 0.34:
             data = frame(s2r.TORQUE, bytes((rng.choice([0, 1, 1, 1, 2]),)))
+        elif kind < 0.36:  # torque on with start pulses (protocol 2), now and then malformed
+            starts = [rng.randrange(300, 2700) for _ in range(n)]
+            on = bytes((rng.choice([1, 1, 0]),))
+            data = frame(s2r.TORQUE, on + s2r.encode_targets(starts)[: rng.choice([2 * n, 3])])
+            moves = True
         elif kind < 0.46:
             data = frame(s2r.READ_STATE, b"")
         elif kind < 0.50:
@@ -231,33 +257,58 @@ def _traffic(seed: int, n: int) -> list[tuple[float, bytes]]:
 
 
 def _model_replay(
-    traffic: list[tuple[str, float, bytes]], spec: ArmSpec, boot_id: int
+    traffic: list[tuple[str, float, bytes]],
+    spec: ArmSpec,
+    boot_id: int,
+    pots: Sequence[tuple[float, int, int]] = (),
 ) -> tuple[list[bytes], list[AppliedCommand]]:
-    """What the Python model does with the bytes the chip received, at the chip's times."""
+    """What the Python model does with the bytes the chip received, at the chip's times, with
+    the potentiometer readings the chip's ADC saw (``AvrEmulator.adc_log``)."""
     log: list[AppliedCommand] = []
     core = FirmwareCore(firmware_limits(spec), boot_id, now_ms=0, on_log=log.append)
     replies: list[bytes] = []
     now_ms = 0
-    for direction, t_s, data in traffic:
-        if direction != "RX":
+    events = sorted(
+        [(t, 0, ("RX", data)) for direction, t, data in traffic if direction == "RX"]
+        + [(t, 1, ("A", (i, counts))) for t, i, counts in pots],
+        key=lambda e: (e[0], e[1]),
+    )
+    for t_s, _, (_kind, value) in events:
+        if isinstance(value, tuple):
+            core.set_pot(*value)
             continue
         ms = int(t_s * 1000)
         while now_ms < ms:  # the chip's loop ticks every millisecond
             now_ms += 1
             core.tick(now_ms)
-        replies += core.feed(data, ms)
+        replies += core.feed(value, ms)
         core.tick(ms)
     return replies, log
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize(("seed", "build"), [(1, "pwm"), (2, "pwm"), (3, "pots")])
 def test_avr_binary_matches_the_python_model(
-    spec: ArmSpec, make_avr: Callable[..., AvrEmulator], seed: int
+    spec: ArmSpec, make_avr: Callable[..., AvrEmulator], seed: int, build: str
 ) -> None:
-    emu = make_avr(spec)
+    """Byte for byte, in both builds: bare PWM servos (readings commanded: the output pulses)
+    and every potentiometer wired (readings measured). In the pot build the test holds each
+    wiper at a voltage of its own and moves two of them half-way, each change in a quiet
+    moment of the stream, so the chip's ADC and the model read the same counts."""
+    build_spec = load_spec(PWM_SPEC_PATH) if build == "pwm" else spec
+    emu = make_avr(build_spec)
+    names = build_spec.actuator_names
+    pinned = {name: 300 + 90 * i for i, name in enumerate(names)} if build == "pots" else {}
+    for name, counts in pinned.items():
+        emu.set_pot_counts(name, counts)
     chunks = _traffic(seed, spec.n_actuators)
+    half = len(chunks) // 2
     with serial.Serial(emu.port, 115200, timeout=0) as port:
-        for pause, data in chunks:
+        for k, (pause, data) in enumerate(chunks):
+            if k == half and pinned:  # a quiet moment: no frame in flight, none due soon
+                time.sleep(0.05)
+                emu.set_pot_counts(names[0], 800)
+                emu.set_pot_counts(names[2], 1020)  # beyond the calibrated span: clamped
+                time.sleep(0.05)
             time.sleep(pause)
             port.write(data)
             port.read(4096)  # keep the line drained
@@ -274,7 +325,7 @@ def test_avr_binary_matches_the_python_model(
         if k == "TX"
         for f in framer.feed(d, t)
     ]
-    model_replies, model_log = _model_replay(traffic, spec, boot_id=1)
+    model_replies, model_log = _model_replay(traffic, build_spec, boot_id=1, pots=emu.adc_log)
     assert len(chip_replies) == len(model_replies) > 30
     for k, (a, b) in enumerate(zip(chip_replies, model_replies, strict=True)):
         assert a == b, f"reply {k}: chip {a.hex()} != model {b.hex()}"
@@ -288,6 +339,19 @@ def test_avr_binary_matches_the_python_model(
     assert any(r[5] == s2r.ERROR for r in chip_replies)
     stats = s2r.decode_stats(chip_replies[-1][6:-2])
     assert stats["clamps"] > 0 and stats["garbage_bytes"] > 0
+    # every STATE said which readings are measured; in the pot build they are the wipers
+    states = [
+        s2r.StatePayload.decode(r[6:-2], spec.n_actuators)
+        for r in chip_replies
+        if r[5] in (s2r.SET_TARGETS | s2r.REPLY, s2r.READ_STATE | s2r.REPLY)
+    ]
+    assert states and {st.measured for st in states} == {0 if build == "pwm" else 0b1111}
+    if pinned:
+        limits = firmware_limits(build_spec)
+        seen = {st.positions for st in states}
+        before = tuple(limits.pot_us(i, pinned[n]) for i, n in enumerate(names))
+        after = (limits.pot_us(0, 800), before[1], limits.pot_us(2, 1020), before[3])
+        assert seen == {before, after} and after[2] == limits.pot_us_max  # clamped to the span
 
 
 def test_a_spec_with_other_limits_gets_its_own_build(quick_spec: ArmSpec, tmp_path: Path) -> None:
@@ -358,7 +422,9 @@ def test_slew_and_watchdog_run_in_chip_time(
     spec: ArmSpec, make_avr: Callable[..., AvrEmulator]
 ) -> None:
     """In simulated 16 MHz time (not wall time): the output pulse slews at the compiled rate, and
-    with the host silent the chip holds after 250 ms and stops the pulses 500 ms later."""
+    with the host silent the chip holds after 250 ms and stops the pulses 500 ms later. The
+    committed build (no pots): torque on starts the outputs at park."""
+    spec = load_spec(PWM_SPEC_PATH)
     limits = firmware_limits(spec)
     emu = make_avr(spec)
     target = list(limits.park_us)

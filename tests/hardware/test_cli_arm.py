@@ -93,7 +93,7 @@ def test_ping_and_home(
     emu = make_emulator(spec, "s2r")
     assert main(["arm", "ping", "--port", emu.port, "--protocol", "s2r"]) == 0
     out = capsys.readouterr().out
-    assert "arm3 firmware 1.0" in out and "shoulder=-0.29" in out
+    assert "arm3 firmware 1.1, protocol 2" in out and "shoulder=-0.29" in out
     assert main(["arm", "home", "--port", emu.port]) == 0
     assert "home: base_yaw=+0.0" in capsys.readouterr().out
     np.testing.assert_allclose(emu.true_positions_rad(), spec.actuator_home_rad, atol=0.06)

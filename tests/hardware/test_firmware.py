@@ -20,7 +20,7 @@ from hardware.firmware.limits import (
     write_limits_header,
 )
 from hardware.protocols import s2r
-from hardware.spec import ArmSpec
+from hardware.spec import PWM_SPEC_PATH, ArmSpec, load_spec
 
 
 def test_core_host_tests_pass(firmware_build: dict[str, Path]) -> None:
@@ -68,15 +68,22 @@ def test_bad_spec_writes_no_header(spec: ArmSpec, tmp_path: Path) -> None:
     assert not out.exists() and list(tmp_path.iterdir()) == []
     assert spec.gripper is not None
     bad_ids = replace(spec, gripper=replace(spec.gripper, servo_id=9))
-    with pytest.raises(SpecError, match="no PWM pin"):
+    with pytest.raises(SpecError, match="servo_id 9 has no analog input for its potentiometer"):
         write_limits_header(out, bad_ids)
+    with pytest.raises(SpecError, match="no PWM pin"):
+        write_limits_header(out, bad_ids.with_feedback({"gripper": "commanded"}))
+    with pytest.raises(SpecError, match=r"pot counts name actuator\(s\) \['wrist'\]"):
+        write_limits_header(out, spec, pot_counts={"wrist": (1, 2)})
+    with pytest.raises(SpecError, match="joint elbow: pot counts 300..300 must be two different"):
+        write_limits_header(out, spec, pot_counts={"elbow": (300, 300)})
     assert not out.exists()
 
 
 # ---- C++ vs Python on identical byte streams ----------------------------------------------------
 def _script(seed: int, limits_n: int) -> list[str]:
     """Random but protocol-shaped traffic: every message type, garbage, corruption, truncation,
-    retransmissions, gaps, and silences long enough to trip the watchdog."""
+    retransmissions, gaps, silences long enough to trip the watchdog, and potentiometers that
+    move (including beyond their calibrated span)."""
     rng = random.Random(seed)
     lines: list[str] = []
     t = 0
@@ -96,8 +103,15 @@ def _script(seed: int, limits_n: int) -> list[str]:
                 rng.randrange(300, 2700).to_bytes(2, "little") for _ in range(limits_n)
             )
             data = frame(s2r.SET_TARGETS, payload)
-        elif kind < 0.38:
+        elif kind < 0.34:
             data = frame(s2r.TORQUE, bytes((rng.choice([0, 1, 1, 1, 2]),)))
+        elif kind < 0.38:  # torque on with start pulses (sometimes malformed)
+            starts = [rng.randrange(300, 2700) for _ in range(limits_n)]
+            data = frame(
+                s2r.TORQUE,
+                bytes((rng.choice([1, 1, 1, 0]),))
+                + s2r.encode_targets(starts)[: rng.choice([8, 8, 3])],
+            )
         elif kind < 0.46:
             data = frame(s2r.READ_STATE, b"")
         elif kind < 0.50:
@@ -131,6 +145,8 @@ def _script(seed: int, limits_n: int) -> list[str]:
             data = data[cut:]
         lines.append(f"R {t} {data.hex()}")
         last = data
+        if rng.random() < 0.15:
+            lines.append(f"A {rng.randrange(limits_n)} {rng.randrange(0, 1024)}")
         lines.append(f"T {t}")
         if rng.random() < 0.05:
             for _ in range(rng.randrange(1, 80)):  # silence: the watchdog may trip
@@ -143,17 +159,22 @@ def _script(seed: int, limits_n: int) -> list[str]:
 
 def _run_python(lines: list[str], spec: ArmSpec, boot_id: int) -> list[str]:
     core = FirmwareCore(firmware_limits(spec), boot_id, now_ms=0)
+    n = spec.n_actuators
     out: list[str] = []
     for line in lines:
         parts = line.split()
         if parts[0] == "R":
             data = bytes.fromhex(parts[2]) if len(parts) > 2 else b""
             out += [f"TX {r.hex()}" for r in core.feed(data, int(parts[1]))]
+        elif parts[0] == "A":
+            core.set_pot(int(parts[1]), int(parts[2]))
         elif parts[0] == "T":
             core.tick(int(parts[1]))
         else:
             st = core.stats
-            outs = " ".join(f"{o}/{g}" for o, g in zip(core.output, core.target, strict=True))
+            outs = " ".join(
+                f"{core.output[i]}/{core.target[i]}/{core.position(i)}" for i in range(n)
+            )
             counters = [
                 st.rx_frames,
                 st.crc_errors,
@@ -165,20 +186,25 @@ def _run_python(lines: list[str], spec: ArmSpec, boot_id: int) -> list[str]:
                 st.duplicates,
             ]
             out.append(
-                f"ST {int(core.attached)} {int(core.holding)} {core.flags()} {outs} | "
-                + " ".join(str(c & 0xFFFF) for c in counters)
+                f"ST {int(core.attached)} {int(core.holding)} {core.flags()} "
+                f"{core.measured_mask()} {outs} | " + " ".join(str(c & 0xFFFF) for c in counters)
             )
     return out
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize(
+    ("seed", "build"), [(1, "replay"), (2, "replay"), (3, "replay_pots"), (4, "replay_pots")]
+)
 def test_python_model_matches_cpp_core(
-    firmware_build: dict[str, Path], spec: ArmSpec, seed: int
+    firmware_build: dict[str, Path], spec: ArmSpec, seed: int, build: str
 ) -> None:
+    """Both builds: bare PWM servos (the committed header, readings commanded) and every servo's
+    potentiometer wired (the shipped spec's pot build, readings measured)."""
+    build_spec = load_spec(PWM_SPEC_PATH) if build == "replay" else spec
     lines = _script(seed, spec.n_actuators)
     boot_id = 0x1000 + seed
     proc = subprocess.run(
-        [firmware_build["replay"], str(boot_id)],
+        [firmware_build[build], str(boot_id)],
         input="\n".join(lines) + "\n",
         capture_output=True,
         text=True,
@@ -186,7 +212,7 @@ def test_python_model_matches_cpp_core(
         check=True,
     )
     cpp = proc.stdout.splitlines()
-    py = _run_python(lines, spec, boot_id)
+    py = _run_python(lines, build_spec, boot_id)
     assert len(cpp) == len(py)
     for k, (a, b) in enumerate(zip(cpp, py, strict=True)):
         assert a == b, f"line {k}: C++ {a!r} != Python {b!r}"
@@ -196,3 +222,16 @@ def test_python_model_matches_cpp_core(
     assert rx > 100 and crc > 0 and garbage > 0 and clamps > 0 and dups > 0
     assert trips > 0 or seed != 1
     assert any(x.startswith("TX ") and x[13:15] == "ff" for x in py)  # error replies happened
+    mask = firmware_limits(build_spec).measured_mask
+    assert mask == (0 if build == "replay" else 0b1111)
+    states = [x for x in py if x.startswith("TX ") and x[13:15] in ("82", "83")]
+    assert states and all(int(x[21:23], 16) == mask for x in states)  # the readings byte
+
+
+def test_the_wiring_figure_draws(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    from hardware.firmware.wiring_figure import main
+
+    out = tmp_path / "wiring.png"
+    assert main([str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000

@@ -108,12 +108,72 @@ def test_partial_frame_is_abandoned_after_a_gap() -> None:
 def test_payload_codecs_round_trip() -> None:
     pong = s2r.PongPayload(1, 1, 0, 4, 0xBEEF, 0x1234, 250)
     assert s2r.PongPayload.decode(pong.encode()) == pong
-    state = s2r.StatePayload(0x05, 7, (1500, 1600, 1700, 1800), (1501, 1601, 1701, 1801))
+    state = s2r.StatePayload(0x05, 7, (1500, 1600, 1700, 1800), (1501, 1601, 1701, 1801), 0b1010)
     assert s2r.StatePayload.decode(state.encode(), 4) == state
+    assert state.encode()[3] == 0b1010  # the readings byte follows flags and boot id
+    assert state.measured_array().tolist() == [False, True, False, True]
     assert s2r.decode_targets(s2r.encode_targets([500, 2500, 1500])) == (500, 2500, 1500)
     lo, hi, step = (501, 900), (2499, 2000), (159, 100)
     assert s2r.decode_limits(s2r.encode_limits(lo, hi, step)) == (lo, hi, step)
-    with pytest.raises(ProtocolError, match="expected 19"):
-        s2r.StatePayload.decode(b"\x00" * 18, 4)
+    # a protocol-1 STATE (no readings byte) is refused, never misread
+    with pytest.raises(
+        ProtocolError, match=r"has 19 bytes, expected 20 for 4 actuators \(protocol 2\)"
+    ):
+        s2r.StatePayload.decode(b"\x00" * 19, 4)
+    assert s2r.encode_torque(False, [1500, 1600]) == b"\x00"
+    assert s2r.encode_torque(True) == b"\x01"
+    assert s2r.encode_torque(True, [1500, 1600]) == b"\x01\xdc\x05\x40\x06"
     with pytest.raises(ProtocolError):
         s2r.PongPayload.decode(b"\x00")
+
+
+def test_pong_keeps_its_layout_so_either_version_stops_in_one_line() -> None:
+    """PONG did not change in protocol 2: a protocol-1 host decodes it, reads version 2 and
+    stops with its own one-line version error (its check is the same code as below)."""
+    pong = s2r.PongPayload(s2r.PROTO_VERSION, *s2r.FW_VERSION, 4, 1, 2, 250).encode()
+    assert len(pong) == 10 and pong[0] == 2 == s2r.PROTO_VERSION
+
+
+def test_a_protocol_1_device_is_refused_with_one_line() -> None:
+    """A board still running protocol-1 firmware, over a real pty: connect stops at the PING."""
+    import os
+    import threading
+
+    from hardware.serial_arm import SerialArm
+    from hardware.spec import load_spec
+
+    spec = load_spec()
+    master, slave = os.openpty()
+    stop = threading.Event()
+
+    def device() -> None:  # answers every PING as protocol-1 firmware did
+        framer = S2RFramer()
+        while not stop.is_set():
+            import select
+
+            ready, _, _ = select.select([master], [], [], 0.05)
+            if not ready:
+                continue
+            try:
+                data = os.read(master, 256)
+            except OSError:
+                return
+            for f in framer.feed(data, 0.0):
+                if f.type == s2r.PING:
+                    old = s2r.PongPayload(1, 1, 0, 4, 7, 0, 250).encode()
+                    os.write(master, encode_frame(f.seq, s2r.PING | s2r.REPLY, old))
+
+    thread = threading.Thread(target=device, daemon=True)
+    thread.start()
+    try:
+        arm = SerialArm(spec, os.ttyname(slave), protocol="s2r", timeout_s=0.2)
+        with pytest.raises(ProtocolError) as info:
+            arm.connect()
+        msg = str(info.value)
+        assert "\n" not in msg
+        assert "firmware speaks s2r protocol version 1, this host speaks 2" in msg
+    finally:
+        stop.set()
+        thread.join(timeout=2.0)
+        os.close(master)
+        os.close(slave)

@@ -15,14 +15,16 @@ from hardware.spec import ArmSpec
 
 class _SerialContract(ArmContract):
     protocol = "s2r"
+    feedback = "measured"
 
     @pytest.fixture
     def emulator(self, quick_spec: ArmSpec, make_emulator: Callable[..., Emulator]) -> Emulator:
-        return make_emulator(quick_spec, self.protocol)
+        return make_emulator(quick_spec.with_feedback(self.feedback), self.protocol)
 
     @pytest.fixture
     def arm(self, quick_spec: ArmSpec, emulator: Emulator) -> Iterator[SerialArm]:
-        arm = SerialArm(quick_spec, emulator.port, protocol=self.protocol, timeout_s=0.1)
+        spec = quick_spec.with_feedback(self.feedback)
+        arm = SerialArm(spec, emulator.port, protocol=self.protocol, timeout_s=0.1)
         yield arm
         arm.close()
 
@@ -33,6 +35,13 @@ class _SerialContract(ArmContract):
 
 class TestS2RContract(_SerialContract):
     protocol = "s2r"
+
+
+class TestS2RPwmContract(_SerialContract):
+    """The firmware on bare PWM servos: every reading is the commanded pulse."""
+
+    protocol = "s2r"
+    feedback = "commanded"
 
 
 class TestFeetechContract(_SerialContract):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hardware.errors import SpecError
-from hardware.spec import DEFAULT_SPEC_PATH, ArmSpec, load_spec
+from hardware.spec import DEFAULT_SPEC_PATH, PWM_SPEC_PATH, ArmSpec, load_spec
 
 SPEC = load_spec()
 
@@ -73,3 +73,85 @@ def test_bad_specs_fail_with_one_line_naming_the_value(
 def test_missing_spec_file_is_named() -> None:
     with pytest.raises(SpecError, match="no such file: 'nowhere.yaml'"):
         load_spec("nowhere.yaml")
+
+
+# ---- feedback kinds -----------------------------------------------------------------------------
+# Shipped policies are pinned to these: a spec that says nothing about feedback (every reading
+# measured) must keep the fingerprint it had before feedback kinds existed.
+DEFAULT_FINGERPRINT = "cd34ecb3e3f5294a"
+
+
+def test_feedback_defaults_to_measured_and_keeps_the_fingerprint() -> None:
+    assert SPEC.actuator_feedback == ("measured",) * SPEC.n_actuators
+    assert SPEC.actuator_measured.all()
+    assert SPEC.fingerprint() == DEFAULT_FINGERPRINT
+    d = SPEC.to_dict()
+    assert all("feedback" not in j for j in d["joints"]) and "feedback" not in d["gripper"]
+    # saying "measured" out loud changes nothing either
+    explicit = ArmSpec.from_dict(
+        {**d, "joints": [{**j, "feedback": "measured"} for j in d["joints"]]}
+    )
+    assert explicit == SPEC and explicit.fingerprint() == DEFAULT_FINGERPRINT
+
+
+def test_the_pwm_build_reads_its_commands_and_has_its_own_fingerprint(tmp_path: Path) -> None:
+    pwm = load_spec(PWM_SPEC_PATH)
+    assert pwm.actuator_feedback == ("commanded",) * pwm.n_actuators
+    assert not pwm.actuator_measured.any()
+    # the same arm otherwise
+    assert pwm.with_feedback("measured").to_dict() == {**SPEC.to_dict(), "name": pwm.name}
+    assert pwm.fingerprint() != pwm.with_feedback("measured").fingerprint()
+    # one commanded joint is enough to change it, and it round-trips through YAML
+    one = SPEC.with_feedback({"gripper": "commanded"})
+    assert one.actuator_measured.tolist() == [True, True, True, False]
+    assert one.fingerprint() != SPEC.fingerprint()
+    one.to_yaml(tmp_path / "one.yaml")
+    again = ArmSpec.from_yaml(tmp_path / "one.yaml")
+    assert again == one and again.fingerprint() == one.fingerprint()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "servo_id: 2",
+            "servo_id: 2\n    feedback: guessed",
+            "joint elbow: feedback 'guessed' is not one of commanded, measured",
+        ),
+        ("max_gap_m: 0.05", "max_gap_m: 0.05\n  feedback: 1", "gripper: feedback 1 is not one of"),
+    ],
+)
+def test_bad_feedback_kinds_fail_in_one_line(
+    tmp_path: Path, old: str, new: str, message: str
+) -> None:
+    path = _mutated(tmp_path, old, new)
+    with pytest.raises(SpecError, match=message) as info:
+        ArmSpec.from_yaml(path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+    with pytest.raises(SpecError, match=r"feedback names actuator\(s\) \['wrist'\]"):
+        SPEC.with_feedback({"wrist": "measured"})
+
+
+def test_every_protocol_has_a_reading_table_and_mismatches_are_named() -> None:
+    from hardware.feedback import (
+        READING_SOURCES,
+        protocol_kinds,
+        readings_mismatch,
+        spec_protocol_problem,
+    )
+    from hardware.protocols import PROTOCOLS
+
+    assert {s.protocol for s in READING_SOURCES if s.protocol} == set(PROTOCOLS)
+    assert protocol_kinds("feetech") == ("measured",)
+    assert protocol_kinds("maestro") == ("commanded",)
+    assert protocol_kinds("s2r") == ("commanded", "measured")
+    with pytest.raises(SpecError, match="no reading table for protocol 'dxl'"):
+        protocol_kinds("dxl")
+    pwm = load_spec(PWM_SPEC_PATH)
+    assert spec_protocol_problem(pwm, "s2r") == "" == spec_protocol_problem(SPEC, "feetech")
+    problem = spec_protocol_problem(SPEC, "maestro")
+    assert "base_yaw (measured)" in problem and "reports commanded" in problem
+    assert "cannot deliver" in spec_protocol_problem(pwm, "feetech")
+    assert readings_mismatch(SPEC, np.ones(4, dtype=bool)) == ""
+    why = readings_mismatch(SPEC, np.array([True, True, False, False]))
+    assert "elbow reads commanded (spec: measured)" in why and "gripper" in why and "\n" not in why

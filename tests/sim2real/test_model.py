@@ -9,7 +9,7 @@ import pytest
 from hardware.spec import load_spec
 from sim2real import model as names
 from sim2real.errors import ConfigError, UnknownNameError
-from sim2real.model import SCENES, RigSpec, build_model
+from sim2real.model import SCENES, RigSpec, TwinScene, build_mjcf, build_model
 
 SPEC = load_spec()
 
@@ -122,3 +122,41 @@ def test_bad_scene_and_rig_values_are_named() -> None:
         build_model(SPEC, "kitchen")
     with pytest.raises(ConfigError, match="baseline_m 0.0001"):
         RigSpec(baseline_m=0.0001)
+
+
+def _model_bytes(model: mujoco.MjModel) -> bytes:
+    buf = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buf)
+    return buf.tobytes()
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_a_pickled_twin_scene_compiles_to_the_same_model_bytes(scene: str) -> None:
+    """What a child process is sent (the render process, the mock arm's physics) compiles to
+    the parent's twin bit for bit; MuJoCo's MJCF text (6 digits) only to a near copy."""
+    import pickle
+
+    twin = TwinScene(SPEC, scene, RigSpec(baseline_m=0.07), markers=True, target_stand=True)
+    model = twin.model()
+    assert _model_bytes(pickle.loads(pickle.dumps(twin)).model()) == _model_bytes(model)
+    text = mujoco.MjModel.from_xml_string(build_mjcf(SPEC, scene, twin.rig, True, True))
+    assert (text.ngeom, text.nbody, text.njnt, text.nu) == (
+        model.ngeom, model.nbody, model.njnt, model.nu
+    )  # fmt: skip
+    np.testing.assert_allclose(text.actuator_gainprm, model.actuator_gainprm, rtol=1e-5)
+
+
+def test_the_old_module_still_offers_every_name() -> None:
+    """``sim2real.model`` re-exports the twin's modules: nothing that imports it breaks."""
+    from sim2real import camera_rig, scene_names, twin, twin_mjcf
+
+    old = {"ARMATURE_KG_M2", "FINGER_DAMPING_NS_M", "PHYSICS_TIMESTEP_S", "ArmTwin",
+           "SERVO_SATURATION_ERROR_RAD", "TARGET_STAND_LENGTH_M", "TARGET_STAND_RADIUS_M",
+           "CameraSpec", "RigSpec", "build_mjcf", "build_model", "marker_fill",
+           "finger_m_to_gripper_rad", "gripper_rad_to_finger_m"}  # fmt: skip
+    shared = {n for n in vars(scene_names) if n.isupper()}  # every name, as before
+    for name in old | shared:
+        assert name in names.__all__, name
+    for module in (camera_rig, twin, twin_mjcf):
+        for name in old & set(vars(module)):
+            assert getattr(names, name) is getattr(module, name)

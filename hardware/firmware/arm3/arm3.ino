@@ -10,8 +10,13 @@
 // Servo driver: Timer1 pulses on pins ARM3_SERVO_PIN (default; src/servo_pulses.h, no Servo
 // library needed, so Debian's Arduino packages build it), or a PCA9685 board on channels
 // ARM3_SERVO_CHANNEL when built with -DARM3_USE_PCA9685 (needs Adafruit's PWM servo library).
-// Power-up: servos stay detached (limp) until a TORQUE frame; they then hold the park pose, so
-// power the arm up resting in the park pose.
+// Power-up: servos stay detached (limp) until a TORQUE frame. A servo whose potentiometer is
+// wired to an analog input (ARM3_POT_CHANNEL, from `feedback: measured` in the spec) then holds
+// where it is; one without holds the pulse the host says it last sent, or the park pose after a
+// power-up, so power the arm up resting in the park pose.
+//
+// Potentiometers: one analogRead (~0.11 ms) per loop() pass, round robin, so each pot is
+// sampled every few milliseconds, far faster than a servo's 20 ms frame.
 //
 // Between loop() passes the CPU sleeps (idle mode) until the next interrupt: a UART byte, the
 // 1.024 ms millis() tick or a pulse edge. Nothing is late for it, and an emulator of the chip
@@ -43,12 +48,14 @@ static arm3::ServoPulses pulses;
 
 static const arm3::Limits kLimits = {
     ARM3_N_ACTUATORS, ARM3_LOWER_US, ARM3_UPPER_US, ARM3_PARK_US, ARM3_MAX_STEP_US,
-    ARM3_SLEW_US_PER_S, ARM3_WATCHDOG_MS, ARM3_HOLD_MS, ARM3_LIMITS_CRC};
+    ARM3_SLEW_US_PER_S, ARM3_WATCHDOG_MS, ARM3_HOLD_MS, ARM3_LIMITS_CRC,
+    ARM3_POT_CHANNEL, ARM3_POT_COUNTS_MIN, ARM3_POT_COUNTS_MAX, ARM3_POT_US_MIN, ARM3_POT_US_MAX};
 
 static void send_reply(void*, const uint8_t* data, uint8_t len) { Serial.write(data, len); }
 
 static arm3::Core core(kLimits, send_reply, nullptr);
 static bool driven[ARM3_N_ACTUATORS];
+static uint8_t next_pot = 0;
 
 // A boot counter in EEPROM: the host sees a new boot id after any reset (brown-out included).
 static uint16_t next_boot_id() {
@@ -57,6 +64,12 @@ static uint16_t next_boot_id() {
   id = static_cast<uint16_t>(id + 1);
   EEPROM.put(0, id);
   return id;
+}
+
+static void sample_pot(uint8_t i) {
+  if (ARM3_POT_CHANNEL[i] != ARM3_NO_POT) {
+    core.set_pot(i, static_cast<uint16_t>(analogRead(A0 + ARM3_POT_CHANNEL[i])));
+  }
 }
 
 static void drive(uint8_t i, bool on, uint16_t pulse_us) {
@@ -83,6 +96,7 @@ void setup() {
 #endif
   for (uint8_t i = 0; i < ARM3_N_ACTUATORS; ++i) driven[i] = false;
   core.begin(next_boot_id(), millis());
+  for (uint8_t i = 0; i < ARM3_N_ACTUATORS; ++i) sample_pot(i);  // before the first frame
 }
 
 // Sleep until the next interrupt unless a byte is already waiting (checked with interrupts off,
@@ -105,6 +119,8 @@ void loop() {
   while (Serial.available() > 0) {
     core.feed(static_cast<uint8_t>(Serial.read()), millis());
   }
+  sample_pot(next_pot);
+  next_pot = static_cast<uint8_t>((next_pot + 1) % ARM3_N_ACTUATORS);
   core.tick(millis());
   const bool on = core.attached();
   for (uint8_t i = 0; i < ARM3_N_ACTUATORS; ++i) drive(i, on, core.output(i));

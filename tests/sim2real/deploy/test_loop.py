@@ -58,8 +58,8 @@ def test_sim_backend_reaches_targets_and_logs_every_period(
     same_episode = np.diff(data["episode"]) == 0
     steps = np.abs(np.diff(data["sent_rad"], axis=0))[same_episode]
     assert np.all(steps <= spec.safety.max_step_rad + 1e-9)
-    assert set(result.summary()["sections_ms"]) == {"read", "perceive", "infer", "command"}
-    assert result.summary()["task"] == "reach"
+    assert set(result.summary().sections_ms) == {"read", "perceive", "infer", "command"}
+    assert result.summary().task == "reach"
 
 
 def test_periods_run_without_the_cyclic_collector_or_a_blas_worker(
@@ -118,8 +118,8 @@ def test_sim_backend_runs_pick_with_a_scripted_grasp(spec: ArmSpec, pick_io: Pol
         pick_policy(spec, b, d), pick_io, spec, LOCKSTEP, LoopConfig(episodes=2, **FAST),
     )  # fmt: skip
     s = result.summary()
-    assert s["task"] == "pick" and s["episodes"] == 2
-    figures = s["task_figures"]
+    assert s.task == "pick" and s.episodes == 2
+    figures = s.task_figures
     assert {"grasped_ever_rate", "mean_max_lift_m", "mean_cube_blind_max_s"} <= set(figures)
     assert figures["grasped_ever_rate"] > 0 and figures["mean_max_lift_m"] > 0.03, s
 

@@ -7,9 +7,6 @@ what a loaded machine needs (a stuck child fails them instead of hanging the sui
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -21,12 +18,11 @@ from hardware.errors import HardwareError
 from hardware.plant import Plant
 from hardware.serial_arm import SerialArm
 from hardware.spec import ArmSpec
-from sim2real.deploy.loop import LoopConfig
 from sim2real.deploy.mock_arm import MockArmJob, MockArmProcess
 from sim2real.deploy.policy_io import PolicyIO
-from sim2real.deploy.runner import DeployOptions, run_policy
 
-from .conftest import MOCK, ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
+from .children import assert_dies_with_its_host, kill_mid_deploy  # type: ignore[import-not-found]
+from .conftest import pid_alive  # type: ignore[import-not-found]
 
 EXIT_BOUND_S = scaled(60.0)
 
@@ -57,7 +53,9 @@ def test_the_control_channel_round_trips_and_the_pty_serves_the_arm(spec: ArmSpe
                 state.positions_rad, mock.true_positions_rad(), atol=0.03
             )  # fmt: skip
         assert mock.applied("torque"), "the device saw no torque command over the pty"
-        with pytest.raises(HardwareError, match=r"^mock arm: jump failed: KeyError.*valid"):
+        with pytest.raises(
+            HardwareError, match=r"^jump failed in the mock arm process: KeyError.*valid"
+        ):
             mock.call("jump")
     assert mock.pid is not None and not pid_alive(mock.pid)
     assert mock.applied("torque")  # the device's log outlives its process
@@ -85,56 +83,15 @@ sys.stdin.read()  # until killed
 
 @pytest.mark.realtime
 def test_the_arm_process_dies_when_its_host_is_killed() -> None:
-    host = subprocess.Popen(
-        [sys.executable, "-c", _HOST], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-    )
-    child: int | None = None
-    try:
-        assert host.stdout is not None
-        child = int(host.stdout.readline())
-        assert pid_alive(child)
-        host.kill()  # SIGKILL: no cleanup code of the host's runs
-        host.wait()
-        deadline = time.monotonic() + EXIT_BOUND_S
-        while pid_alive(child) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not pid_alive(child), "the mock arm outlived its host"
-    finally:
-        host.kill()
-        host.wait()
-        kill_pid(child)
+    assert_dies_with_its_host(_HOST, "mock arm")
 
 
 @pytest.mark.realtime
 def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from sim2real.deploy import session as session_mod
-
-    log = tmp_path / "crash.npz"
-    calls = {"n": 0}
-    real = session_mod.ControlSession.log_period
-    killed: list[int] = []
-
-    def crash_after_10(self: session_mod.ControlSession, *a: object, **k: object) -> None:
-        real(self, *a, **k)  # type: ignore[arg-type]
-        calls["n"] += 1
-        if calls["n"] == 10:
-            pid = self.arm.emulator.pid  # type: ignore[attr-defined]
-            killed.append(pid)
-            os.kill(pid, signal.SIGKILL)
-
-    monkeypatch.setattr(session_mod.ControlSession, "log_period", crash_after_10)
-    try:
-        with pytest.raises(HardwareError) as info:
-            run_policy(
-                ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec,
-                DeployOptions(**MOCK),
-                LoopConfig(episodes=2, start_timeout_s=scaled(60)), log_path=log,
-            )  # fmt: skip
-    finally:
-        for pid in killed:
-            kill_pid(pid)
-    message = str(info.value)
+    message = kill_mid_deploy(
+        spec, reach_io, tmp_path / "crash.npz", monkeypatch,
+        lambda session: session.arm.emulator.pid,
+    )  # fmt: skip
     assert message == "the mock arm process died (killed by SIGKILL)", message
-    assert np.load(log)["obs"].shape[0] >= 10

@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,15 +22,13 @@ from hardware.arm import ArmState
 from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
 from sim2real import scene_names as names
-from sim2real.deploy.loop import LoopConfig
 from sim2real.deploy.perception import StereoPerception
 from sim2real.deploy.perception_process import PerceptionJob, PerceptionProcess
 from sim2real.deploy.policy_io import PolicyIO
 from sim2real.deploy.render_process import FrameBlock, SharedFrames
-from sim2real.deploy.runner import DeployOptions, run_policy
 from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
 
-from .conftest import MOCK, ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
+from .children import assert_dies_with_its_host, kill_mid_deploy  # type: ignore[import-not-found]
 
 BOUND_S = scaled(60.0)
 
@@ -162,61 +157,19 @@ sys.stdin.read()  # until killed
 
 @pytest.mark.realtime
 def test_the_perception_process_dies_when_its_host_is_killed() -> None:
-    host = subprocess.Popen(
-        [sys.executable, "-c", _HOST], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-    )
-    child: int | None = None
-    try:
-        assert host.stdout is not None
-        child = int(host.stdout.readline())
-        assert pid_alive(child)
-        host.kill()  # SIGKILL: no cleanup code of the host's runs
-        host.wait()
-        deadline = time.monotonic() + BOUND_S
-        while pid_alive(child) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not pid_alive(child), "the perception process outlived its host"
-    finally:
-        host.kill()
-        host.wait()
-        kill_pid(child)
+    assert_dies_with_its_host(_HOST, "perception process")
 
 
 @pytest.mark.realtime
 def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from sim2real.deploy import session as session_mod
-
-    log = tmp_path / "crash.npz"
-    calls = {"n": 0}
-    real = session_mod.ControlSession.log_period
-    killed: list[int] = []
-    mocks: list[object] = []
-
-    def crash_after_10(self: session_mod.ControlSession, *a: object, **k: object) -> None:
-        real(self, *a, **k)  # type: ignore[arg-type]
-        calls["n"] += 1
-        if calls["n"] == 10:
-            pid = self.perception.worker_pid  # type: ignore[attr-defined]
-            mocks.append(self.arm.emulator)  # type: ignore[attr-defined]
-            killed.append(pid)
-            os.kill(pid, signal.SIGKILL)
-
-    monkeypatch.setattr(session_mod.ControlSession, "log_period", crash_after_10)
-    try:
-        with pytest.raises(HardwareError) as info:
-            run_policy(
-                ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec,
-                DeployOptions(**MOCK),
-                LoopConfig(episodes=2, start_timeout_s=scaled(60)), log_path=log,
-            )  # fmt: skip
-    finally:
-        for pid in killed:
-            kill_pid(pid)
-    message = str(info.value)
+    mocks: list[Any] = []
+    message = kill_mid_deploy(
+        spec, reach_io, tmp_path / "crash.npz", monkeypatch,
+        lambda session: session.perception.worker_pid, seen=mocks,
+    )  # fmt: skip
     assert message == "the perception process died (killed by SIGKILL)", message
-    assert np.load(log)["obs"].shape[0] >= 10
     # the safe stop: the device's last torque command was torque off
-    torque = mocks[0].applied("torque")  # type: ignore[attr-defined]
+    torque = mocks[0].applied("torque")
     assert torque and not any(torque[-1].applied), torque[-1]

@@ -14,7 +14,7 @@ from hardware.emulator import Emulator
 from hardware.serial_arm import SerialArm
 from hardware.spec import ArmSpec
 from sim2real.deploy.worlds import MockPhysics
-from sim2real.model import ArmTwin, build_mjcf
+from sim2real.model import ArmTwin, build_model
 
 
 @pytest.fixture
@@ -71,7 +71,7 @@ def test_the_arm_sags_under_gravity_as_the_envs_actuators_do_and_reads_there(
     np.testing.assert_allclose(emu.true_positions_rad(), horn, atol=1e-9)
 
     # the same sag as the env's arm: its model, driven to the same setpoint, rests there too
-    model = mujoco.MjModel.from_xml_string(build_mjcf(spec, "reach"))
+    model = build_model(spec, "reach")
     data = mujoco.MjData(model)
     twin = ArmTwin(model, spec)
     twin.set_pose(data, setpoint, float(setpoint[-1]))

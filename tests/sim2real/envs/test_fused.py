@@ -25,9 +25,9 @@ from sim2real.envs.pick import (
     PickTask,
     cube_estimate,
     cube_readings,
+    judge_holding,
     percept_shaping,
 )
-from sim2real.envs.pick import holding as pick_holding
 from sim2real.envs.reach import ReachTask
 from sim2real.envs.trace import TraceTask
 from sim2real.model import RigSpec, finger_m_to_gripper_rad, gripper_rad_to_finger_m
@@ -35,6 +35,13 @@ from sim2real.observation import ActionDecoder, ObservationBuilder, command_read
 from sim2real.randomization.sensing import SensorModel
 
 SPEC = load_spec()
+# Reading kinds the sensing is checked under: every reading measured (the pinned rollouts'), a
+# bare PWM build (every reading the echo of its command) and a mix of both.
+FEEDBACK = {
+    "measured": SPEC,
+    "commanded": load_spec("hardware/specs/arm3_mg996r_pwm.yaml"),
+    "mixed": SPEC.with_feedback({"shoulder": "commanded", "gripper": "commanded"}),
+}
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -145,7 +152,9 @@ def test_command_is_decode_then_actuate(dtype: type) -> None:
             prev = outs[0][1]
 
 
-def _sensor_pair(rng: np.random.Generator, n_r: int) -> tuple[SensorModel, SensorModel]:
+def _sensor_pair(
+    rng: np.random.Generator, n_r: int, spec: Any = SPEC, dt: float = 0.05
+) -> tuple[SensorModel, SensorModel]:
     cam = RigSpec().cameras[0]
     T = cam.base_T_cam()
     params: dict[str, Any] = {
@@ -159,27 +168,42 @@ def _sensor_pair(rng: np.random.Generator, n_r: int) -> tuple[SensorModel, Senso
         "occlusion_prob": rng.uniform(0.3, 1.0),
     }
     res = SPEC.servo.resolution_rad if rng.random() < 0.8 else 0.0
-    pair = tuple(SensorModel(n_r, res, T[:3, :3], T[:3, 3], cam.focal_px, 0.1) for _ in range(2))
+    speeds = [spec.servo.max_speed_rad_s] * spec.n_joints + [spec.gripper.max_speed_rad_s]
+    echo = {
+        "commanded": ~spec.actuator_measured[:n_r],
+        "slew_rad_per_step": np.array(speeds[:n_r]) * dt,
+    }
+    pair = tuple(
+        SensorModel(n_r, res, T[:3, :3], T[:3, 3], cam.focal_px, 0.1, **echo) for _ in range(2)
+    )
     for s in pair:
         s.configure(params)
         s.reset()
     return pair[0], pair[1]
 
 
-CASES = [  # task, obs mode "goal"?
-    (ReachTask, False),
-    (ReachTask, True),
-    (PickTask, False),
-    (TraceTask, False),
+CASES = [  # task, obs mode "goal"?, reading kinds (``FEEDBACK``)
+    (ReachTask, False, "measured"),
+    (ReachTask, True, "measured"),
+    (PickTask, False, "measured"),
+    (TraceTask, False, "measured"),
+    (ReachTask, False, "commanded"),
+    (PickTask, False, "commanded"),
+    (PickTask, False, "mixed"),
 ]
 
 
-@pytest.mark.parametrize(("task_cls", "goal_mode"), CASES)
+@pytest.mark.parametrize(("task_cls", "goal_mode", "feedback"), CASES)
 def test_observe_is_the_sensor_models_goal_rule_and_builder(
-    task_cls: type, goal_mode: bool
+    task_cls: type, goal_mode: bool, feedback: str
 ) -> None:
-    """``SensorModel.read`` → ``occlude`` → ``delay``, the task's goal (pick: the grasp-aware
-    ``cube_estimate``), ``command_readings`` and ``ObservationBuilder.build``, against one call."""
+    """``SensorModel.read`` (commanded readings: the echo of what was sent) → ``occlude`` →
+    ``delay``, the task's goal (pick: ``judge_holding`` by the gripper's reading kind, then the
+    grasp-aware ``cube_estimate``), ``command_readings`` and ``ObservationBuilder.build``,
+    against one call."""
+    spec = FEEDBACK[feedback]
+    assert spec.gripper is not None
+    grip_kind = spec.gripper.feedback
     task = task_cls()
     n_j = SPEC.n_joints
     n_r = n_j + (1 if task.uses_gripper else 0)
@@ -193,12 +217,13 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
     assert g is not None
     no_contacts = np.zeros((1, 4), dtype=np.int32)[:, ::2]
     no_ids, no_prm = np.zeros(0, dtype=np.int32), np.zeros(0)
-    rng = np.random.default_rng([len(task.name), goal_mode])
+    rng = np.random.default_rng([len(task.name), goal_mode, len(feedback)])
     dt = 0.05
+    held_counts = {"near": 0, "hidden": 0}
     for _episode in range(12):
-        ref, fast = _sensor_pair(rng, n_r)
+        ref, fast = _sensor_pair(rng, n_r, spec, dt)
         r_ref, r_fast = np.random.default_rng(3), np.random.default_rng(3)
-        prm = np.zeros(fused.N_PRM + n_r)
+        prm = np.zeros(fused.N_PRM + 2 * n_r)
         fused.put_camera(prm, fast)
         fused.put_sensing(prm, fast)
         prm[fused.P_DT] = dt
@@ -206,6 +231,9 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             g.closed_rad, g.open_rad, g.max_gap_m, float(task.uses_gripper),
         )  # fmt: skip
         prm[fused.P_HOLD_MARGIN], prm[fused.P_BLIND_CAP] = HOLD_MARGIN_RAD, BLIND_CAP_S
+        prm[fused.P_HOLD_NEAR] = task.grasp_near_m
+        prm[fused.P_HELD_AWAY] = task.held_away_m
+        prm[fused.P_HOLD_RULE] = fused.HOLD_RULES[grip_kind]
         prm[fused.P_SIGN0 : fused.P_SIGN2 + 1] = [j.sign for j in SPEC.joints[:3]]
         L = SPEC.links
         prm[fused.P_UPPER : fused.P_TOOL_DOWN + 1] = (
@@ -220,16 +248,22 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
         mem = fused.observe_memory(1, n_r, delay)
         goals = fused.observe_goals(mem, 1)
         aux = rng.uniform(-0.2, 0.2, (2, 3))
+        was_held, grip_rad, carried = False, g.open_rad, False
         for _ in range(40):
             qpos = rng.uniform(-1.5, 1.5, n_r + 2)
             if task.uses_gripper:
                 qpos[n_j] = rng.uniform(-0.002, g.max_gap_m / 2 + 0.002)
             tool = rng.uniform(-0.2, 0.3, 3)
             # near the tool half the time, so occlusion hides it
-            point = tool + rng.normal(0, 0.03, 3) if rng.random() < 0.5 else rng.uniform(0, 0.3, 3)
+            point = tool + rng.normal(0, 0.015, 3) if rng.random() < 0.6 else rng.uniform(0, 0.3, 3)
             targets = rng.uniform(-1.5, 1.5, n_r)
-            if task.uses_gripper:
-                targets[n_j] = rng.choice([g.closed_rad, g.open_rad])
+            if task.uses_gripper:  # kept for a few periods: its echo slews there, then stays
+                grip_rad = (
+                    grip_rad if rng.random() < 0.8 else rng.choice([g.closed_rad, g.open_rad])
+                )
+                targets[n_j] = grip_rad
+            # what the safety filter let through: the targets, or a step short of them
+            sent = targets + (rng.uniform(-0.3, 0.3, n_r) if rng.random() < 0.3 else 0.0)
             prev_action = rng.uniform(-1, 1, n_act).astype(rng.choice([np.float32, np.float64]))
             true_a, true_d = rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.3, 0.3, 3)
 
@@ -237,7 +271,7 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             q = qpos[:n_r].copy()
             if task.uses_gripper:
                 q[n_j] = finger_m_to_gripper_rad(SPEC, float(qpos[n_j]))
-            joints, est = ref.read(q, np.stack([tool, point]), r_ref)
+            joints, est = ref.read(q, np.stack([tool, point]), r_ref, sent_rad=sent)
             blind = np.zeros(1)
             if task.occludable:
                 held, blind_n = ref.occlude(est[1:], tool, point[None], r_ref)
@@ -245,8 +279,13 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             if ref.delay_steps:
                 joints, est, blind = ref.delay(joints, est, blind)
             ee, obj = est[0], est[1]
-            if blind[0] > 0:
-                obj = cube_estimate(obj, ee, blind[0], pick_holding(SPEC, targets, joints))
+            grasp = False
+            if task.uses_gripper:
+                grasp = judge_holding(spec, targets, joints, ee, obj, float(blind[0]), was_held)
+                if grasp and grip_kind == "commanded":
+                    held_counts["hidden" if blind[0] > 0 and was_held else "near"] += 1
+                was_held = grasp
+            obj, carried = cube_estimate(obj, ee, blind[0], grasp, carried)
             achieved, desired = (ee, obj) if task.goal_rule == "tool_to_point" else (obj, aux[0])
             readings = {
                 "joint_pos": joints,
@@ -257,7 +296,7 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
                 "prev_action": prev_action,
                 "goal_vel": aux[1],
                 **cube_readings(ee, obj, float(blind[0])),
-                **command_readings(SPEC, targets, desired),
+                **command_readings(spec, targets, desired),
             }
             want = builder.build(readings)
             diff = true_a - true_d
@@ -265,8 +304,8 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             noise = fast.draw(2, r_fast)
             obs = np.empty(builder.size, dtype=np.float32)
             d, shaped = fused.observe(
-                qpos, tool, point[None], prm, ints, noise, mem, targets, prev_action, aux, true_a,
-                true_d, obs, no_contacts, no_ids, no_prm,
+                qpos, tool, point[None], prm, ints, noise, mem, targets, sent, prev_action, aux,
+                true_a, true_d, obs, no_contacts, no_ids, no_prm,
             )  # fmt: skip
             np.testing.assert_array_equal(obs, want)
             np.testing.assert_array_equal(goals, np.stack([achieved, desired]))
@@ -275,6 +314,8 @@ def test_observe_is_the_sensor_models_goal_rule_and_builder(
             assert shaped == 0.0  # no shaping rule in prm
             # both generators made the same draws: the kernel's through the bit generator
             assert r_fast.bit_generator.state == r_ref.bit_generator.state
+    if task.uses_gripper and grip_kind == "commanded":  # both ways to hold were met
+        assert min(held_counts.values()) > 0, held_counts
 
 
 def test_rng_binding_is_not_copied() -> None:

@@ -66,3 +66,26 @@ def test_the_teacher_refuses_what_it_cannot_read_in_one_line() -> None:
             PickServo(reach)
     finally:
         env.close()
+
+
+def test_a_cube_carried_in_the_fingers_is_not_where_a_stray_sighting_puts_it() -> None:
+    """``cube_estimate``: hidden in holding fingers, the cube is at the tool; once carried so, a
+    sighting far from the tool while still holding is not it (a misfit of the half-hidden cube);
+    one near the tool is; before any carry (a gripper still closing in empty air reads "open"),
+    a sighting on the table is where the cube is."""
+    from sim2real.envs.pick import HELD_AWAY_M, cube_estimate
+
+    tool = np.array([0.15, 0.02, 0.08])
+    far = tool - (0.0, 0.0, 2 * HELD_AWAY_M)
+    near = tool + (0.0, 0.005, 0.0)
+
+    def check(got: tuple[np.ndarray, bool], want: np.ndarray, carried: bool) -> None:
+        np.testing.assert_array_equal(got[0], want)
+        assert got[1] is carried
+
+    check(cube_estimate(far, tool, 0.3, True), tool, True)  # hidden in holding fingers
+    check(cube_estimate(far, tool, 0.0, True, carried=True), tool, True)  # a stray sighting
+    check(cube_estimate(near, tool, 0.0, True, carried=True), near, True)  # seen in the fingers
+    check(cube_estimate(near, tool, 0.0, True, carried=False), near, True)  # just grasped
+    check(cube_estimate(far, tool, 0.0, True, carried=False), far, False)  # closing in the air
+    check(cube_estimate(far, tool, 0.0, False, carried=True), far, False)  # let go

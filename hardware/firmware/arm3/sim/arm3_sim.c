@@ -1,7 +1,9 @@
 // arm3_sim: runs the arm3 firmware .elf on a simulated ATmega328P (simavr) in step with wall time.
 //
-//   arm3_sim FIRMWARE.elf PIN[,PIN...] [BOOT_ID]
+//   arm3_sim FIRMWARE.elf PIN[,PIN...] [BOOT_ID] [CH=MV[,CH=MV...]]
 //
+// * The analog inputs start at the given millivolts (potentiometer wipers at power-up, so the
+//   sketch's first samples in setup() read them) and change with "A" commands.
 // * UART0 is bridged to a pseudo-terminal; its slave path is the first line on stdout. Bytes go
 //   into the simulated UART at the chip's own baud rate (simavr times them from UBRR0), and a
 //   host at another baud is heard as noise, as on a real UART.
@@ -21,8 +23,11 @@
 //   T <t_us> <min_sp>          a heartbeat (every 10 ms of simulated time) with the lowest stack
 //                              pointer seen so far
 //   RESET <t_us>               the chip was reset (brown-out command)
-// Commands on stdin: "B" brown-out reset (EEPROM kept), "Q" quit. EOF on stdin also quits, so the
-// harness never outlives its parent.
+//   ADC <t_us> <ch> <mv>       analog input ch now carries mv millivolts (from an "A" command)
+// Commands on stdin, one per line: "B" brown-out reset (EEPROM kept), "Q" quit,
+// "A <ch> <mv>" set analog input ch (A0..A7) to mv millivolts (a potentiometer's wiper; the
+// ADC's references are 5 V, so the firmware reads mv * 1023 / 5000 counts). EOF on stdin also
+// quits, so the harness never outlives its parent.
 #define _GNU_SOURCE
 #include <errno.h>
 #include <fcntl.h>
@@ -36,6 +41,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "avr_adc.h"
 #include "avr_eeprom.h"
 #include "avr_extint.h"
 #include "avr_ioport.h"
@@ -51,6 +57,7 @@
 #define RX_BUF 4096
 #define QUIET_CYCLES (F_CPU_HZ / 200)  // 5 ms without a UART byte: the line is quiet
 #define IDLE_WAIT_S 0.005
+#define VREF_MV 5000  // AVCC and AREF: an Uno's 5 V
 
 static avr_t* avr;
 static int n_ch;
@@ -68,6 +75,8 @@ static uint16_t min_sp = 0xFFFF;
 static int baud_reported;
 static int pty_master = -1;
 static avr_cycle_count_t last_activity;  // last UART byte either way: keep fine steps after it
+static char cmd_line[64];
+static int cmd_len;
 
 static double t_us(avr_cycle_count_t c) { return (double)c * 1e6 / (double)F_CPU_HZ; }
 
@@ -147,6 +156,38 @@ static int pin_port(int pin, char* port, int* bit) {
   return 0;
 }
 
+static void set_references(void) {
+  avr->vcc = VREF_MV;
+  avr->avcc = VREF_MV;
+  avr->aref = VREF_MV;
+}
+
+// One command line from stdin; returns 1 on "Q".
+static int run_command(const char* line) {
+  if (line[0] == 'Q') return 1;
+  if (line[0] == 'B') {
+    avr_reset(avr);
+    avr->sleep = no_sleep;
+    set_references();
+    avr_extint_set_strict_lvl_trig(avr, 0, 0);
+    avr_extint_set_strict_lvl_trig(avr, 1, 0);
+    uart_xoff = 0;
+    baud_reported = 0;
+    for (int ch = 0; ch < n_ch; ++ch) rising[ch] = 0;
+    printf("RESET %.0f\n", t_us(avr->cycle));
+  } else if (line[0] == 'A') {
+    int ch = -1, mv = -1;
+    if (sscanf(line + 1, "%d %d", &ch, &mv) == 2 && ch >= 0 && ch <= 7 && mv >= 0 &&
+        mv <= VREF_MV) {
+      avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + ch), (uint32_t)mv);
+      printf("ADC %.0f %d %d\n", t_us(avr->cycle), ch, mv);
+    } else {
+      fprintf(stderr, "arm3_sim: bad command %s (want: A <ch 0-7> <mv 0-%d>)\n", line, VREF_MV);
+    }
+  }
+  return 0;
+}
+
 static int open_pty(int* slave_fd, char* path, size_t path_len) {
   const int master = posix_openpt(O_RDWR | O_NOCTTY);
   if (master < 0 || grantpt(master) || unlockpt(master)) return -1;
@@ -188,7 +229,7 @@ static void report_baud(void) {
 
 int main(int argc, char** argv) {
   if (argc < 3) {
-    fprintf(stderr, "usage: %s FIRMWARE.elf PIN[,PIN...] [BOOT_ID]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf PIN[,PIN...] [BOOT_ID] [CH=MV,...]\n", argv[0]);
     return 2;
   }
   setvbuf(stdout, NULL, _IOFBF, 1 << 16);
@@ -209,6 +250,7 @@ int main(int argc, char** argv) {
   avr_load_firmware(avr, &fw);
   avr->frequency = F_CPU_HZ;
   avr->sleep = no_sleep;
+  set_references();
   // simavr polls INT0/INT1 every cycle while their pin is low ("strict" low-level trigger), even
   // with the interrupt masked; pin 3 (INT1) carries servo pulses and is low most of the time.
   // The firmware never enables INT0/INT1, so the poll only stops the sleeping core from jumping
@@ -259,6 +301,17 @@ int main(int argc, char** argv) {
   pty_master = master;
   printf("PTY %s\n", path);
   fflush(stdout);
+  if (argc > 4) {
+    char* adc_spec = argv[4];
+    for (char* tok = strtok(adc_spec, ","); tok; tok = strtok(NULL, ",")) {
+      char line[32];
+      snprintf(line, sizeof line, "A %s", tok);
+      for (char* c = line; *c; ++c) {
+        if (*c == '=') *c = ' ';
+      }
+      run_command(line);
+    }
+  }
   fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
 
   const double t0 = now_s();
@@ -329,16 +382,12 @@ int main(int argc, char** argv) {
     const ssize_t c = read(0, cmd, sizeof cmd);
     if (c == 0) quit = 1;
     for (ssize_t i = 0; i < c; ++i) {
-      if (cmd[i] == 'Q') quit = 1;
-      if (cmd[i] == 'B') {
-        avr_reset(avr);
-        avr->sleep = no_sleep;
-        avr_extint_set_strict_lvl_trig(avr, 0, 0);
-        avr_extint_set_strict_lvl_trig(avr, 1, 0);
-        uart_xoff = 0;
-        baud_reported = 0;
-        for (int ch = 0; ch < n_ch; ++ch) rising[ch] = 0;
-        printf("RESET %.0f\n", t_us(avr->cycle));
+      if (cmd[i] == '\n' || cmd_len == (int)sizeof cmd_line - 1) {
+        cmd_line[cmd_len] = 0;
+        if (cmd_len > 0 && run_command(cmd_line)) quit = 1;
+        cmd_len = 0;
+      } else {
+        cmd_line[cmd_len++] = cmd[i];
       }
     }
     fflush(stdout);

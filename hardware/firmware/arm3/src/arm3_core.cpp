@@ -32,11 +32,25 @@ uint16_t limits_crc(const Limits& limits) {
     crc = crc16_update(crc, static_cast<uint8_t>(tail[k] & 0xFF));
     crc = crc16_update(crc, static_cast<uint8_t>(tail[k] >> 8));
   }
+  for (uint8_t i = 0; i < limits.n; ++i) {
+    crc = crc16_update(crc, limits.pot_channel[i]);
+    const uint16_t counts[2] = {limits.pot_counts_min[i], limits.pot_counts_max[i]};
+    for (uint8_t k = 0; k < 2; ++k) {
+      crc = crc16_update(crc, static_cast<uint8_t>(counts[k] & 0xFF));
+      crc = crc16_update(crc, static_cast<uint8_t>(counts[k] >> 8));
+    }
+  }
+  const uint16_t us[2] = {limits.pot_us_min, limits.pot_us_max};
+  for (uint8_t k = 0; k < 2; ++k) {
+    crc = crc16_update(crc, static_cast<uint8_t>(us[k] & 0xFF));
+    crc = crc16_update(crc, static_cast<uint8_t>(us[k] >> 8));
+  }
   return crc;
 }
 
 Core::Core(const Limits& limits, ReplyFn reply, void* ctx)
-    : limits_(limits), reply_(reply), ctx_(ctx), feedback_(nullptr) {
+    : limits_(limits), reply_(reply), ctx_(ctx) {
+  for (uint8_t i = 0; i < kMaxActuators; ++i) pot_[i] = 0;
   begin(0, 0);
 }
 
@@ -65,6 +79,32 @@ void Core::begin(uint16_t boot_id, uint32_t now_ms) {
   have_byte_time_ = false;
   last_byte_ms_ = now_ms;
 }
+
+uint8_t Core::measured_mask() const {
+  uint8_t mask = 0;
+  for (uint8_t i = 0; i < limits_.n; ++i) {
+    if (measured(i)) mask = static_cast<uint8_t>(mask | (1u << i));
+  }
+  return mask;
+}
+
+// Two-point linear map, counts clamped to the calibrated span, rounded to the nearest µs; every
+// operand is >= 0 here, so C++ and Python (hardware/firmware/limits.py) divide alike.
+uint16_t Core::pot_us(uint8_t i) const {
+  int32_t c0 = limits_.pot_counts_min[i];
+  int32_t c1 = limits_.pot_counts_max[i];
+  int32_t c = pot_[i];
+  if (c1 < c0) {  // a pot wired the other way round
+    c0 = -c0;
+    c1 = -c1;
+    c = -c;
+  }
+  c = clamp32(c, c0, c1);
+  const int32_t span = static_cast<int32_t>(limits_.pot_us_max) - limits_.pot_us_min;
+  return static_cast<uint16_t>(limits_.pot_us_min + ((c - c0) * span + (c1 - c0) / 2) / (c1 - c0));
+}
+
+uint16_t Core::position(uint8_t i) const { return measured(i) ? pot_us(i) : output_[i]; }
 
 uint8_t Core::flags() const {
   return static_cast<uint8_t>((attached_ ? kFlagTorqueOn : 0) | (holding_ ? kFlagWatchdogHold : 0) |
@@ -145,15 +185,16 @@ void Core::send_error(uint8_t seq, uint8_t code, uint8_t type) {
 }
 
 void Core::send_state(uint8_t seq, uint8_t type) {
-  uint8_t p[3 + 4 * kMaxActuators];
+  uint8_t p[4 + 4 * kMaxActuators];
   const uint8_t n = limits_.n;
   p[0] = flags();
   put16(p + 1, boot_id_);
+  p[3] = measured_mask();
   for (uint8_t i = 0; i < n; ++i) {
-    put16(p + 3 + 2 * i, feedback_ ? feedback_[i] : output_[i]);
-    put16(p + 3 + 2 * n + 2 * i, target_[i]);
+    put16(p + 4 + 2 * i, position(i));
+    put16(p + 4 + 2 * n + 2 * i, target_[i]);
   }
-  send(seq, type, p, static_cast<uint8_t>(3 + 4 * n));
+  send(seq, type, p, static_cast<uint8_t>(4 + 4 * n));
 }
 
 // ---- messages ------------------------------------------------------------------------------
@@ -211,15 +252,13 @@ void Core::handle(uint8_t seq, uint8_t type, const uint8_t* p, uint8_t len, uint
       return send(seq, reply, nullptr, 0);
     }
     case kTorque:
-      if (len != 1) return send_error(seq, kErrBadLength, type);
-      if (p[0] > 1) return send_error(seq, kErrBadValue, type);
+      if (len != 1 && len != 1 + 2 * n) return send_error(seq, kErrBadLength, type);
+      if (p[0] > 1 || (len > 1 && p[0] != 1)) return send_error(seq, kErrBadValue, type);
       if (!dup) {
-        attached_ = p[0] == 1;
-        if (attached_) {
-          for (uint8_t i = 0; i < n; ++i) {
-            target_[i] = output_[i];
-            carry_[i] = 0;
-          }
+        if (p[0] == 1) {
+          attach(len > 1 ? p + 1 : nullptr);
+        } else {
+          attached_ = false;
         }
       }
       return send(seq, reply, nullptr, 0);
@@ -255,6 +294,25 @@ void Core::apply_targets(const uint8_t* p) {
   }
   clamped_ = clamped;
   if (clamped) stats_.clamps++;
+}
+
+// Torque on without a snap: a servo with a pot starts from where it is, one without from where
+// the host says it was last sent (start_us, when given) or the output it had. Every start is
+// clamped to the limits; the target is the start, so nothing moves until a SET_TARGETS.
+// Already attached, only the pots count: a start pulse must not jump a driven servo.
+void Core::attach(const uint8_t* start_us) {
+  for (uint8_t i = 0; i < limits_.n; ++i) {
+    int32_t v = output_[i];
+    if (measured(i)) {
+      v = pot_us(i);
+    } else if (start_us != nullptr && !attached_) {
+      v = get16(start_us + 2 * i);
+    }
+    output_[i] = static_cast<uint16_t>(clamp32(v, lower_[i], upper_[i]));
+    target_[i] = output_[i];
+    carry_[i] = 0;
+  }
+  attached_ = true;
 }
 
 // ---- time ----------------------------------------------------------------------------------

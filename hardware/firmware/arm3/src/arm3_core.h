@@ -16,9 +16,11 @@ const uint8_t kSync0 = 0xA5;
 const uint8_t kSync1 = 0x5A;
 const uint16_t kGapMs = 10;  // a partial frame older than this is abandoned
 
-const uint8_t kProtoVersion = 1;
+// 2: STATE carries a readings byte (which positions are measured); TORQUE 1 may carry where to
+// start the outputs of servos without a potentiometer.
+const uint8_t kProtoVersion = 2;
 const uint8_t kFwMajor = 1;
-const uint8_t kFwMinor = 0;
+const uint8_t kFwMinor = 1;
 
 // Message types (reply = request | kReply, or kError)
 const uint8_t kPing = 0x01;
@@ -44,6 +46,8 @@ const uint8_t kFlagWatchdogHold = 0x02;
 const uint8_t kFlagClamped = 0x04;
 const uint8_t kFlagCustomLimits = 0x08;
 
+const uint8_t kNoPot = 255;  // pot_channel of a servo without a wired potentiometer
+
 struct Limits {
   uint8_t n;
   const uint16_t* lower_us;
@@ -54,6 +58,13 @@ struct Limits {
   uint16_t watchdog_ms;
   uint16_t hold_ms;
   uint16_t limits_crc;
+  // Potentiometers: ADC channel per actuator (kNoPot: none, the reading is the output pulse),
+  // and the counts read with the horn where pot_us_min / pot_us_max pulses put it.
+  const uint8_t* pot_channel;
+  const uint16_t* pot_counts_min;
+  const uint16_t* pot_counts_max;
+  uint16_t pot_us_min;
+  uint16_t pot_us_max;
 };
 
 struct Stats {
@@ -82,8 +93,14 @@ class Core {
   void feed(uint8_t byte, uint32_t now_ms);
   // The control loop: watchdog, then the slew-rate limiter. Call every loop().
   void tick(uint32_t now_ms);
-  // Measured positions (feedback pots), or nullptr to report the outputs.
-  void set_feedback(const uint16_t* positions_us) { feedback_ = positions_us; }
+  // The latest ADC counts of actuator i's potentiometer (the sketch samples them; ignored for
+  // an actuator without one).
+  void set_pot(uint8_t i, uint16_t counts) { pot_[i] = counts; }
+  bool measured(uint8_t i) const { return limits_.pot_channel[i] != kNoPot; }
+  // Bit i: actuator i's reading is measured (its pot), else it is the output pulse.
+  uint8_t measured_mask() const;
+  // The reading of actuator i in µs: its pot mapped to pulse, or the output pulse.
+  uint16_t position(uint8_t i) const;
 
   bool attached() const { return attached_; }
   bool holding() const { return holding_; }
@@ -98,6 +115,8 @@ class Core {
   void drop(uint8_t count);
   void handle(uint8_t seq, uint8_t type, const uint8_t* p, uint8_t len, uint16_t crc, uint32_t now_ms);
   void apply_targets(const uint8_t* p);
+  void attach(const uint8_t* start_us);
+  uint16_t pot_us(uint8_t i) const;
   void send(uint8_t seq, uint8_t type, const uint8_t* payload, uint8_t len);
   void send_error(uint8_t seq, uint8_t code, uint8_t type);
   void send_state(uint8_t seq, uint8_t type);
@@ -105,7 +124,7 @@ class Core {
   const Limits& limits_;
   ReplyFn reply_;
   void* ctx_;
-  const uint16_t* feedback_;
+  uint16_t pot_[kMaxActuators];
   uint16_t boot_id_;
   Stats stats_;
   uint16_t lower_[kMaxActuators];

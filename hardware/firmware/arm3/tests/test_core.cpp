@@ -21,7 +21,8 @@ static int checks = 0;
 
 static const arm3::Limits kLimits = {
     ARM3_N_ACTUATORS, ARM3_LOWER_US, ARM3_UPPER_US, ARM3_PARK_US, ARM3_MAX_STEP_US,
-    ARM3_SLEW_US_PER_S, ARM3_WATCHDOG_MS, ARM3_HOLD_MS, ARM3_LIMITS_CRC};
+    ARM3_SLEW_US_PER_S, ARM3_WATCHDOG_MS, ARM3_HOLD_MS, ARM3_LIMITS_CRC,
+    ARM3_POT_CHANNEL, ARM3_POT_COUNTS_MIN, ARM3_POT_COUNTS_MAX, ARM3_POT_US_MIN, ARM3_POT_US_MAX};
 
 typedef std::vector<uint8_t> Bytes;
 static std::vector<Bytes> replies;
@@ -189,12 +190,97 @@ static void test_hold_then_resume() {
   CHECK(!core.holding() && core.attached());  // a valid frame within hold_ms resumes
 }
 
+// The committed limits with a potentiometer on actuators 0 (wired as nominal) and 2 (wired the
+// other way round): the pot build's logic, whatever the committed header says.
+static uint8_t pot_channel[ARM3_N_ACTUATORS];
+static uint16_t pot_min[ARM3_N_ACTUATORS];
+static uint16_t pot_max[ARM3_N_ACTUATORS];
+
+static arm3::Limits pot_limits() {
+  for (int i = 0; i < ARM3_N_ACTUATORS; ++i) {
+    pot_channel[i] = (i == 0 || i == 2) ? static_cast<uint8_t>(i) : arm3::kNoPot;
+    pot_min[i] = i == 2 ? 819 : 205;
+    pot_max[i] = i == 2 ? 205 : 819;
+  }
+  arm3::Limits l = kLimits;
+  l.pot_channel = pot_channel;
+  l.pot_counts_min = pot_min;
+  l.pot_counts_max = pot_max;
+  return l;
+}
+
+static uint16_t state_position(const Bytes& reply, int i) {
+  return static_cast<uint16_t>(reply[6 + 4 + 2 * i] | (reply[6 + 5 + 2 * i] << 8));
+}
+
+static void test_pots_and_attach() {
+  const arm3::Limits limits = pot_limits();
+  arm3::Core core(limits, collect, nullptr);
+  core.begin(1, 0);
+  CHECK(core.measured_mask() == 0x05);
+  // counts -> µs: the two calibration points, the middle, and beyond the span (clamped)
+  core.set_pot(0, 205);
+  CHECK(core.position(0) == 500);
+  core.set_pot(0, 819);
+  CHECK(core.position(0) == 2500);
+  core.set_pot(0, 512);
+  CHECK(core.position(0) == 1500);
+  core.set_pot(0, 1000);
+  CHECK(core.position(0) == 2500);
+  core.set_pot(2, 819);  // reversed: the high count is the low pulse
+  CHECK(core.position(2) == 500);
+  core.set_pot(2, 512);
+  CHECK(core.position(2) == 1500);
+  CHECK(core.position(1) == ARM3_PARK_US[1]);  // no pot: the output pulse
+  // STATE says which readings are measured
+  replies.clear();
+  feed(core, frame(1, arm3::kReadState, Bytes()), 1);
+  CHECK(replies.size() == 1 && replies[0][6 + 3] == 0x05);
+  CHECK(state_position(replies[0], 2) == 1500 && state_position(replies[0], 1) == ARM3_PARK_US[1]);
+  // Torque on: a pot servo starts where it is (inside the limits), no snap to park
+  core.set_pot(0, 450);  // 500 + (245 * 2000 + 307) / 614 = 1298 µs
+  core.set_pot(2, 1023);  // beyond the span: 500 µs, under the elbow's lower limit
+  feed(core, frame(2, arm3::kTorque, Bytes{1}), 2);
+  CHECK(core.attached());
+  CHECK(core.output(0) == 1298 && core.target(0) == 1298);
+  CHECK(core.output(2) == ARM3_LOWER_US[2] && core.target(2) == ARM3_LOWER_US[2]);
+  CHECK(core.output(1) == ARM3_PARK_US[1] && core.target(1) == ARM3_PARK_US[1]);
+  // Torque off, then on from where the host last sent them: servos without a pot start there
+  // (clamped), servos with one still from the pot
+  feed(core, frame(3, arm3::kTorque, Bytes{0}), 3);
+  CHECK(!core.attached());
+  uint16_t start[ARM3_N_ACTUATORS];
+  for (int i = 0; i < ARM3_N_ACTUATORS; ++i) start[i] = 1600;
+  start[3] = 100;  // below the gripper's lower limit
+  Bytes on = targets(start);
+  on.insert(on.begin(), 1);
+  feed(core, frame(4, arm3::kTorque, on), 4);
+  CHECK(core.attached());
+  CHECK(core.output(1) == 1600 && core.target(1) == 1600);
+  CHECK(core.output(3) == ARM3_LOWER_US[3]);
+  CHECK(core.output(0) == 1298);
+  // Already on: a start pulse must not jump a driven servo
+  for (int i = 0; i < ARM3_N_ACTUATORS; ++i) start[i] = 2000;
+  on = targets(start);
+  on.insert(on.begin(), 1);
+  feed(core, frame(5, arm3::kTorque, on), 5);
+  CHECK(core.output(1) == 1600);
+  // Malformed TORQUE payloads are refused
+  replies.clear();
+  feed(core, frame(6, arm3::kTorque, Bytes{1, 2}), 6);
+  CHECK(replies.size() == 1 && replies[0][6] == arm3::kErrBadLength);
+  on[0] = 0;  // torque off with start pulses means nothing
+  feed(core, frame(7, arm3::kTorque, on), 6);
+  CHECK(replies.size() == 2 && replies[1][6] == arm3::kErrBadValue && core.attached());
+}
+
 int main() {
   test_crc();
   test_ping_and_resync();
   test_limits_step_and_torque();
   test_slew_and_watchdog();
   test_hold_then_resume();
+  test_pots_and_attach();
   if (failures) {
     fprintf(stderr, "arm3 core: %d of %d checks failed\n", failures, checks);
     return 1;

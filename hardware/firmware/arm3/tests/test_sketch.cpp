@@ -8,6 +8,7 @@
 
 FakeSerial Serial;
 FakeEEPROM EEPROM;
+uint16_t fake_adc[8];
 static unsigned long fake_now = 0;
 unsigned long millis() { return fake_now; }
 

@@ -8,6 +8,11 @@
 
 unsigned long millis();
 
+// Analog inputs: analogRead(A0 + ch) returns fake_adc[ch] (the test sets it).
+const uint8_t A0 = 14;
+extern uint16_t fake_adc[8];
+inline int analogRead(uint8_t pin) { return fake_adc[(pin - A0) & 7]; }
+
 struct FakeSerial {
   std::deque<uint8_t> rx;
   std::vector<uint8_t> tx;
