@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: venv demo test test-all bench lint format firmware firmware-test avr-deps docs docs-serve clean
+.PHONY: venv demo test test-slow test-all bench lint format firmware firmware-test avr-deps docs docs-serve clean
 
 # The AVR firmware's toolchain and simulator (Debian packages). `make test` installs them when
 # missing and it runs as root (CI does); otherwise the AVR tests skip with a one-line reason.
@@ -27,7 +27,7 @@ demo: $(STAMP)
 	$(BIN)/sim2real demo
 
 test: $(STAMP) avr-deps
-	$(BIN)/python -m pytest -n 2 --timeout 600 -q
+	$(BIN)/python -m pytest -n 2 --timeout 600 -q --durations=15
 
 avr-deps:
 	@if $(AVR_READY); then :; \
@@ -42,6 +42,10 @@ avr-deps:
 firmware: $(STAMP) avr-deps
 	$(MAKE) -C hardware/firmware/arm3 avr sim
 	$(BIN)/python -m hardware.firmware.avr
+
+# The tests marked slow (end-to-end demo, adapt, lean installs): CI runs them after `make test`.
+test-slow: $(STAMP) avr-deps
+	$(BIN)/python -m pytest -n 2 --timeout 3600 -q -m slow --durations=15
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -n 2 --timeout 3600 -q -m ''

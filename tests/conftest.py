@@ -1,14 +1,20 @@
 """Test-wide settings: headless rendering before anything imports MuJoCo; ``spawn`` for tests
-that start processes."""
+that start processes; ``tests/`` importable, for ``timescale`` (the one wall-clock factor)."""
 
 import contextlib
 import os
 import signal
 import subprocess
+import sys
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
+
+_TESTS = str(Path(__file__).resolve().parent)
+if _TESTS not in sys.path:  # ``from timescale import scaled`` in any test
+    sys.path.insert(0, _TESTS)
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")

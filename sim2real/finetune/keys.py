@@ -162,6 +162,10 @@ class HumanKeys:
             return None
         now = time.monotonic()
         utc = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+        if action == ESTOP:
+            # the flag before the arm's e-stop returns: whoever the latched arm refuses (a
+            # learner's step blocked on the arm's lock during the hold) already sees why
+            self._estopped = True
         if action == ESTOP and self.on_estop is not None:  # first: the arm stops at once
             try:
                 self.on_estop("e-stop key")

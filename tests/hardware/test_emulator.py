@@ -6,11 +6,13 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import serial
+from timescale import scaled
 
 from hardware.emulator import Emulator, EmulatorConfig, FaultConfig
 from hardware.emulator.dynamics import ServoBank, ServoParams
@@ -120,10 +122,13 @@ def test_command_latency_is_validated(spec: ArmSpec) -> None:
         ServoParams.from_spec(spec, command_latency_s=-0.01)
 
 
+@pytest.mark.realtime
 def test_command_latency_over_the_pty(spec: ArmSpec) -> None:
     """Through a real pty and the Feetech device: the horn starts moving one latency after the
-    goal was written, not before."""
-    latency_s = 0.06
+    device received the goal, neither before nor later. Judged on the emulator's clock (its
+    device and servos step on a fixed grid), so a stalled test thread cannot move the bounds:
+    a reading taken before the onset never shows motion, one after it always does."""
+    latency_s, tick_s = 0.06, EmulatorConfig().tick_s
     with (
         Emulator(spec, "feetech", EmulatorConfig(command_latency_s=latency_s)) as emu,
         SerialArm(spec, emu.port, "feetech") as arm,
@@ -135,11 +140,24 @@ def test_command_latency_over_the_pty(spec: ArmSpec) -> None:
         start = emu.true_positions_rad()
         goal = home.copy()
         goal[0] += 0.1
-        sent_s = time.monotonic()
+        still_at: list[float] = []  # emulator time just before a reading without motion
+        moved_at = float("nan")  # ... and just after the first reading with motion
         arm.command(goal)
-        assert emu.wait_until(lambda: abs(emu.true_positions_rad()[0] - start[0]) > 1e-6, 1.0)
-        moved_after_s = time.monotonic() - sent_s
-    assert latency_s - 0.002 < moved_after_s < latency_s + 0.03
+        deadline = time.monotonic() + scaled(10.0)
+        while time.monotonic() < deadline:
+            before = emu.now_s()
+            moved = abs(emu.true_positions_rad()[0] - start[0]) > 1e-6
+            if moved:
+                moved_at = emu.now_s()
+                break
+            still_at.append(before)
+        assert emu.sync()
+        received_s = emu.applied("targets")[-1].t_s
+    onset_s = received_s + latency_s
+    assert moved_at >= onset_s - tick_s, (moved_at, onset_s)  # not before the latency
+    # nor later: the device takes the goal on a tick, the servo steps on the next, and a
+    # reading sees the last grid point before it: a few ticks of the emulator's own clock
+    assert not still_at or max(still_at) <= onset_s + 5 * tick_s, (still_at[-3:], onset_s)
 
 
 # ---- the pty ------------------------------------------------------------------------------------
@@ -162,7 +180,11 @@ def test_plain_pyserial_talks_to_it_and_link_is_cleaned_up(spec: ArmSpec, tmp_pa
     assert not link.exists()
 
 
+@pytest.mark.realtime
 def test_wire_time_follows_the_baud(spec: ArmSpec, make_emulator: Callable[..., Emulator]) -> None:
+    """The minimum of 30 round trips (load only ever adds time), at 19200 baud against 1 Mbaud:
+    the wire time differs by 20 ms, far above what scheduling adds to the fastest trip."""
+
     def p50(baud: int) -> float:
         emu = make_emulator(spec, "s2r", EmulatorConfig(baud=baud))
         with SerialArm(spec, emu.port, baud=baud) as arm:
@@ -175,9 +197,9 @@ def test_wire_time_follows_the_baud(spec: ArmSpec, make_emulator: Callable[..., 
         # The minimum, not the median: scheduling delays from other load only ever add time.
         return float(np.min(times))
 
-    slow, fast = p50(115200), p50(1_000_000)
+    slow, fast = p50(19200), p50(1_000_000)
     request, reply = 8 + 2 * 4, 8 + 3 + 4 * 4
-    wire_slow, wire_fast = (request + reply) * 10 / 115200, (request + reply) * 10 / 1_000_000
+    wire_slow, wire_fast = (request + reply) * 10 / 19200, (request + reply) * 10 / 1_000_000
     assert slow >= wire_slow  # the bytes take that long on the wire
     assert slow - fast > 0.7 * (wire_slow - wire_fast)
 
@@ -189,6 +211,7 @@ def test_wrong_baud_gives_no_reply_with_a_baud_hint(
     arm = SerialArm(spec, emu.port, baud=9600, timeout_s=0.02, retries=1)
     with pytest.raises(NoReplyError, match="baud rate.*9600 here; s2r devices default to 115200"):
         arm.connect()
+    assert emu.sync(timeout_s=scaled(10.0))  # both tries reached the device, however late
     assert emu.stats()["baud_mismatch_chunks"] >= 2
     assert emu.host_baud == 9600
 
@@ -197,10 +220,14 @@ def test_wrong_baud_gives_no_reply_with_a_baud_hint(
 def test_corruption_and_drops_are_detected_and_never_applied(
     spec: ArmSpec, make_emulator: Callable[..., Emulator]
 ) -> None:
-    faults = FaultConfig(corrupt_rate=0.1, drop_rate=0.1, delay_rate=0.02, delay_s=0.05, seed=3)
+    # a delayed reply (50 ms) outlives the host's 20 ms reply time-out: it arrives stale. The
+    # retries are many, so a loaded machine's stall (up to 1 s) costs retries, never the run.
+    faults = FaultConfig(
+        corrupt_rate=0.1, drop_rate=0.1, delay_rate=0.02, delay_s=scaled(0.05), seed=3
+    )
     emu = make_emulator(spec, "s2r", EmulatorConfig(baud=1_000_000, faults=faults))
     with SerialArm(
-        spec, emu.port, baud=1_000_000, timeout_s=0.02, retries=6, host_watchdog_s=None
+        spec, emu.port, baud=1_000_000, timeout_s=scaled(0.02), retries=50, host_watchdog_s=None
     ) as arm:
         arm.enable()
         emu.clear_log()
@@ -291,8 +318,11 @@ def test_unplugged_port_is_a_clear_error(
 def test_cut_link_trips_the_firmware_watchdog(
     spec: ArmSpec, make_emulator: Callable[..., Emulator]
 ) -> None:
+    # the device's watchdog at 1 s: 20 back-to-back commands keep it fed on any machine. The
+    # hold and detach times are the device's own (its grid), whenever the test thread looks.
+    spec = replace(spec, safety=replace(spec.safety, watchdog_timeout_s=scaled(1.0)))
     emu = make_emulator(spec, "s2r")
-    with SerialArm(spec, emu.port, host_watchdog_s=None) as arm:
+    with SerialArm(spec, emu.port, host_watchdog_s=None, timeout_s=scaled(0.5)) as arm:
         arm.enable()
         goal = spec.actuator_park_rad.copy()
         for k in range(20):
@@ -300,11 +330,11 @@ def test_cut_link_trips_the_firmware_watchdog(
             arm.command(goal)
         last_rx = emu.applied("targets")[-1].t_s
         emu.cut()
-        assert emu.wait_until(lambda: bool(emu.applied("watchdog_detach")), timeout_s=2.0)
+        assert emu.wait_until(lambda: bool(emu.applied("watchdog_detach")), scaled(30.0))
         hold = emu.applied("watchdog_hold")[0].t_s
         detach = emu.applied("watchdog_detach")[0].t_s
         wd = spec.safety.watchdog_timeout_s
-        # holds at 250 ms, to the firmware clock's 1 ms granularity either way
+        # holds at the watchdog's timeout, to the firmware clock's 1 ms granularity either way
         assert wd - 0.001 <= hold - last_rx <= wd + 0.005
         assert detach - hold == pytest.approx(spec.safety.hold_before_disable_s, abs=0.005)
         assert not emu.torque_enabled().any()
@@ -317,12 +347,14 @@ def test_cut_link_trips_the_firmware_watchdog(
 
 
 def test_maestro_serial_timeout(spec: ArmSpec, make_emulator: Callable[..., Emulator]) -> None:
-    emu = make_emulator(spec, "maestro", EmulatorConfig(maestro_serial_timeout_s=0.1))
+    # 0.5 s without a byte: enable and the command (back to back) never trip it on any machine;
+    # the trip is waited for, not slept to
+    timeout_s = scaled(0.5)
+    emu = make_emulator(spec, "maestro", EmulatorConfig(maestro_serial_timeout_s=timeout_s))
     with SerialArm(spec, emu.port, protocol="maestro", host_watchdog_s=None) as arm:
         arm.enable()
         arm.command(spec.actuator_park_rad)
-        time.sleep(0.2)
-        assert not emu.torque_enabled().any()
+        assert emu.wait_until(lambda: not emu.torque_enabled().any(), timeout_s=scaled(10.0))
         with pytest.raises(SafetyError, match="serial timeout"):
             arm.read_state()
 
@@ -340,16 +372,14 @@ def test_background_reader_swallows_line_noise(
     spec: ArmSpec, make_emulator: Callable[..., Emulator]
 ) -> None:
     emu = make_emulator(spec, "s2r", EmulatorConfig(baud=1_000_000))
-    with SerialArm(spec, emu.port, baud=1_000_000) as arm:
+    # a reply time-out no stall reaches: a retry here can only be a reply the noise cost
+    with SerialArm(spec, emu.port, baud=1_000_000, timeout_s=scaled(5.0)) as arm:
         arm.enable()
-        t = time.perf_counter()
         for _ in range(20):
             emu.inject_tx(bytes(range(0, 250, 3)) * 4)  # noise between replies
             arm.command(spec.actuator_park_rad)
-        elapsed = time.perf_counter() - t
         assert arm.stats()["rx_garbage_bytes"] > 20 * 100
-        assert arm.stats()["retries"] == 0  # noise never cost a retry
-        assert elapsed < 20 * 0.05
+        assert arm.stats()["retries"] == 0  # noise never cost a retry (nor a time-out waited)
 
 
 # ---- idle: no wake-ups; lazy dynamics that do not depend on when anyone looks -------------------

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from timescale import scaled
 
 from hardware.emulator import AppliedCommand, Emulator, EmulatorConfig, FirmwareCore
 from hardware.emulator.devices import FeetechDevice, MaestroDevice
@@ -392,10 +393,16 @@ def test_no_unsafe_command_reaches_the_device(spec: ArmSpec, protocol: str, case
 def test_no_unsafe_command_reaches_the_emulator_over_the_pty(
     spec: ArmSpec, make_emulator: Callable[..., Emulator], protocol: str, cases: int
 ) -> None:
+    # judged: what reaches the device, not the timing. Hypothesis may pause between examples
+    # and a loaded machine stalls: the device's watchdog and the reply time-out are relaxed.
+    spec = replace(spec, safety=replace(spec.safety, watchdog_timeout_s=scaled(30.0)))
     emu = make_emulator(
         spec, protocol, EmulatorConfig(baud=1_000_000, maestro_serial_timeout_s=0.0)
     )
-    with SerialArm(spec, emu.port, protocol=protocol, baud=1_000_000, host_watchdog_s=None) as arm:
+    with SerialArm(
+        spec, emu.port, protocol=protocol, baud=1_000_000, host_watchdog_s=None,
+        timeout_s=scaled(1.0),
+    ) as arm:  # fmt: skip
         arm.enable()
         cal = arm.calibration
         lo, hi = spec.actuator_lower_rad, spec.actuator_upper_rad
@@ -435,19 +442,26 @@ def test_no_unsafe_command_reaches_the_emulator_over_the_pty(
 
 # ---- watchdog and e-stop ------------------------------------------------------------------------
 def test_watchdog_fires_once_and_kick_defers_it() -> None:
+    """Kicks 20 ms apart keep a 0.5 s watchdog quiet (a stall of 0.48 s would be needed to
+    break that); once they stop it fires once, never sooner than its timeout after the last."""
+    timeout_s = scaled(0.5)
     fired: list[float] = []
-    wd = Watchdog(0.05, lambda: fired.append(time.monotonic()))
+    wd = Watchdog(timeout_s, lambda: fired.append(time.monotonic()))
     t0 = time.monotonic()
     wd.arm()
-    for _ in range(5):
+    for _ in range(10):
         time.sleep(0.02)
+        last_kick = time.monotonic()
         wd.kick()
     assert not fired
-    time.sleep(0.15)
-    assert len(fired) == 1 and fired[0] - t0 >= 0.05 + 0.1 - 0.01
+    deadline = time.monotonic() + scaled(10.0)
+    while not fired and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(fired) == 1 and fired[0] - last_kick >= timeout_s
+    assert fired[0] - t0 >= timeout_s + 10 * 0.02  # the kicks deferred it
     wd.arm()
     wd.disarm()
-    time.sleep(0.1)
+    time.sleep(timeout_s + 0.1)  # past the deadline the disarmed arm() would have had
     assert len(fired) == 1
     wd.stop()
     with pytest.raises(SafetyError):
@@ -466,11 +480,12 @@ def test_host_watchdog_parks_a_stalled_loop_and_keeps_it_up(
         # then silence: the host watchdog's thread holds and parks
         assert emu.wait_until(
             lambda: arm.estop_reason is not None and "host watchdog" in arm.estop_reason,
-            timeout_s=5.0,
+            timeout_s=scaled(5.0),
         )
         park = quick_spec.actuator_park_rad
         assert emu.wait_until(
-            lambda: bool(np.all(np.abs(emu.true_positions_rad() - park) < 0.13)), timeout_s=20.0
+            lambda: bool(np.all(np.abs(emu.true_positions_rad() - park) < 0.13)),
+            timeout_s=scaled(20.0),
         )
         assert emu.torque_enabled().all() and arm.is_enabled
         with pytest.raises(SafetyError, match="host watchdog"):
@@ -486,8 +501,12 @@ _SIGNAL_SCRIPT = textwrap.dedent(
     from hardware.spec import load_spec
     from hardware.serial_arm import SerialArm
     from hardware.safety import estop_on_signals
+    from dataclasses import replace
     spec = load_spec()
-    with SerialArm(spec, sys.argv[1], protocol="s2r") as arm:
+    watchdog_s, hold_s = float(sys.argv[2]), float(sys.argv[3])
+    spec = replace(spec, safety=replace(
+        spec.safety, watchdog_timeout_s=watchdog_s, hold_before_disable_s=hold_s))
+    with SerialArm(spec, sys.argv[1], protocol="s2r", timeout_s=watchdog_s / 2) as arm:
         arm.enable()
         with estop_on_signals(arm):
             print("ready", flush=True)
@@ -508,10 +527,17 @@ def test_signal_holds_then_disables(
     sig: int,
     code: int,
 ) -> None:
+    # the device's watchdog relaxed to 0.5 s (20 ms commands keep it fed on any machine), and
+    # a hold three times as long: only the hold's re-sends keep the device from letting go
+    watchdog_s = scaled(0.5)
+    safety = replace(
+        spec.safety, watchdog_timeout_s=watchdog_s, hold_before_disable_s=3 * watchdog_s
+    )
+    spec = replace(spec, safety=safety)
     emu = make_emulator(spec, "s2r")
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     proc = spawn(
-        [sys.executable, "-c", _SIGNAL_SCRIPT, emu.port],
+        [sys.executable, "-c", _SIGNAL_SCRIPT, emu.port, str(watchdog_s), str(3 * watchdog_s)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -524,7 +550,7 @@ def test_signal_holds_then_disables(
         assert emu.torque_enabled().all()
         t_sig = emu.now_s()
         proc.send_signal(sig)
-        rc = proc.wait(timeout=10)
+        rc = proc.wait(timeout=scaled(30))
     finally:
         if proc.poll() is None:
             proc.kill()

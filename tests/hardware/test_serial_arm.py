@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import serial
+from timescale import scaled
 
 from hardware.emulator import Emulator, EmulatorConfig, FaultConfig
 from hardware.errors import CalibrationFileError, NoReplyError, PortError, SafetyError, SpecError
@@ -82,6 +83,7 @@ def test_retries_are_bounded(spec: ArmSpec, make_emulator: Callable[..., Emulato
     arm = SerialArm(spec, emu.port, timeout_s=0.02, retries=2)
     with pytest.raises(NoReplyError, match="to PING after 3 tries of 20 ms"):
         arm.connect()
+    assert emu.sync(timeout_s=scaled(10.0))  # every try reached the device, however late
     assert emu.stats()["device_rx_frames"] == 3  # the device heard each try; every reply was lost
     assert emu.stats()["device_duplicates"] == 2  # retries reuse the SEQ: recognised as repeats
 
@@ -90,7 +92,9 @@ def test_retries_ride_through_lost_replies(
     spec: ArmSpec, make_emulator: Callable[..., Emulator]
 ) -> None:
     emu = make_emulator(spec, "s2r", EmulatorConfig(faults=FaultConfig(drop_rate=0.3, seed=5)))
-    with SerialArm(spec, emu.port, timeout_s=0.02, retries=8, host_watchdog_s=None) as arm:
+    # 20 ms a try, 50 retries: a lost reply costs 20 ms, a loaded machine's stall (up to 1 s)
+    # costs retries, never the run
+    with SerialArm(spec, emu.port, timeout_s=scaled(0.02), retries=50, host_watchdog_s=None) as arm:
         arm.enable()
         for _ in range(40):
             arm.command(spec.actuator_home_rad)

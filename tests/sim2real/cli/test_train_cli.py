@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from timescale import scaled
 
 from sim2real.cli.main import main
 from sim2real.train import RunDir
@@ -50,6 +51,7 @@ def test_train_then_resume_with_a_larger_budget(
     assert "already finished 256 steps" in capsys.readouterr().err
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(
     ("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"]
 )
@@ -69,12 +71,12 @@ def test_a_signal_leaves_a_checkpoint_that_resume_continues(
         text=True,
     )
     rd = RunDir(run)
-    deadline = time.monotonic() + 90
+    deadline = time.monotonic() + scaled(90)
     while not rd.checkpoints() and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.2)
     assert rd.checkpoints(), "no checkpoint appeared"
     os.kill(proc.pid, sig)
-    _, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=scaled(120))
     assert proc.returncode == code, err
     assert f"interrupted ({'Ctrl-C' if code == 130 else 'SIGTERM'})" in err
     status = rd.read_status()

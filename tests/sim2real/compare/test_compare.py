@@ -46,6 +46,8 @@ def _shape(obj: Any) -> Any:
 
 
 def test_local_backend_writes_every_file(tmp_path: Path) -> None:
+    """About 20 s idle: four tiny trainings and their evaluations in two worker processes (each
+    imports torch and SB3), the smallest grid that has seeds to pool and algorithms to compare."""
     algos = ["dqn", "ppo"]
     cfg = CompareConfig(
         env="reach",
@@ -88,6 +90,7 @@ def test_local_backend_writes_every_file(tmp_path: Path) -> None:
         run_compare(cfg)
 
 
+@pytest.mark.slow  # Ray's start-up: 30 s idle, 110 s on a loaded 2-core machine (CI runs it)
 def test_ray_backend_on_two_local_workers_gives_the_same_format(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     cfg = CompareConfig(

@@ -10,11 +10,15 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
+from timescale import scaled
+
 from sim2real.train import RunDir
 
 TINY = ["--set", "n_envs=2", "--set", "n_steps=64", "--set", "batch_size=64", "--set", "n_epochs=1"]
 
 
+@pytest.mark.realtime
 def test_sigterm_keeps_the_checkpoint_of_the_run_in_flight(
     tmp_path: Path, spawn: Callable[..., subprocess.Popen[str]]
 ) -> None:
@@ -26,14 +30,14 @@ def test_sigterm_keeps_the_checkpoint_of_the_run_in_flight(
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     first = RunDir(out / "runs" / "ppo-s0")
-    deadline = time.monotonic() + 180
+    deadline = time.monotonic() + scaled(180)
     while time.monotonic() < deadline and proc.poll() is None:
         if first.path.is_dir() and first.checkpoints():
             break
         time.sleep(0.2)
     assert first.path.is_dir() and first.checkpoints(), "no checkpoint appeared"
     proc.send_signal(signal.SIGTERM)  # to the parent only, not to its worker
-    _, err = proc.communicate(timeout=180)
+    _, err = proc.communicate(timeout=scaled(180))
     assert proc.returncode == 143, err[-2000:]
     status = first.read_status()
     assert not status["finished"]

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from hardware.errors import HardwareError
 from hardware.spec import ArmSpec
@@ -21,9 +22,9 @@ from sim2real.deploy.loop import LoopConfig
 from sim2real.deploy.policy_io import PolicyIO
 from sim2real.deploy.runner import DeployOptions, run_policy
 
-from .conftest import ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
+from .conftest import MOCK, ik_policy, kill_pid, pid_alive  # type: ignore[import-not-found]
 
-BOUND_S = 60.0  # only turns a hang into a failure
+BOUND_S = scaled(60.0)  # only turns a hang into a failure
 
 
 def assert_dies_with_its_host(host_source: str, what: str) -> None:
@@ -78,8 +79,8 @@ def kill_mid_deploy(
         with pytest.raises(HardwareError) as info:
             run_policy(
                 ik_policy(spec, io.builder, io.decoder), io, spec,
-                DeployOptions(backend="mock", watchdog_s=2.0),
-                LoopConfig(episodes=2, start_timeout_s=60), log_path=log,
+                DeployOptions(**MOCK),
+                LoopConfig(episodes=2, start_timeout_s=scaled(60)), log_path=log,
             )  # fmt: skip
     finally:
         for pid in killed:

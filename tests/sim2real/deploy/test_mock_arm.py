@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from hardware.errors import HardwareError
 from hardware.plant import Plant
@@ -23,9 +24,10 @@ from sim2real.deploy.policy_io import PolicyIO
 from .children import assert_dies_with_its_host, kill_mid_deploy  # type: ignore[import-not-found]
 from .conftest import pid_alive  # type: ignore[import-not-found]
 
-EXIT_BOUND_S = 60.0
+EXIT_BOUND_S = scaled(60.0)
 
 
+@pytest.mark.realtime
 def test_the_control_channel_round_trips_and_the_pty_serves_the_arm(spec: ArmSpec) -> None:
     with MockArmProcess(MockArmJob(plant=Plant.nominal(spec), scene="pick")) as mock:
         assert mock.firmware == "Emulator" and mock.pid != os.getpid()
@@ -45,7 +47,7 @@ def test_the_control_channel_round_trips_and_the_pty_serves_the_arm(spec: ArmSpe
         mock.call("clear")
         assert np.linalg.norm(mock.truth()[1]["cube"][:2] - [0.16, 0.03]) > 0.3
         # the host talks to the arm through the pty only, as to a real one
-        with SerialArm(spec, mock.port, "s2r", timeout_s=0.5) as arm:
+        with SerialArm(spec, mock.port, "s2r", timeout_s=scaled(0.5)) as arm:
             state = arm.read_state()
             np.testing.assert_allclose(
                 state.positions_rad, mock.true_positions_rad(), atol=0.03
@@ -79,10 +81,12 @@ sys.stdin.read()  # until killed
 """
 
 
+@pytest.mark.realtime
 def test_the_arm_process_dies_when_its_host_is_killed() -> None:
     assert_dies_with_its_host(_HOST, "mock arm")
 
 
+@pytest.mark.realtime
 def test_a_crash_of_the_arm_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from hardware.arm import ArmState
 from hardware.errors import HardwareError
@@ -29,7 +30,7 @@ from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
 
 from .children import assert_dies_with_its_host, kill_mid_deploy  # type: ignore[import-not-found]
 
-BOUND_S = 60.0
+BOUND_S = scaled(60.0)
 
 
 @pytest.fixture(scope="module")
@@ -154,10 +155,12 @@ sys.stdin.read()  # until killed
 """
 
 
+@pytest.mark.realtime
 def test_the_perception_process_dies_when_its_host_is_killed() -> None:
     assert_dies_with_its_host(_HOST, "perception process")
 
 
+@pytest.mark.realtime
 def test_a_crash_of_the_perception_process_stops_the_run_in_one_line_and_keeps_the_log(
     spec: ArmSpec, reach_io: PolicyIO, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

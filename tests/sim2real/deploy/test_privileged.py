@@ -11,12 +11,14 @@ import pytest
 from hardware.spec import load_spec
 from sim2real.deploy.policy_io import policy_io
 from sim2real.deploy.privileged import TruthTeacher
-from sim2real.deploy.runner import DeployOptions, run_policy
+from sim2real.deploy.runner import run_policy
 from sim2real.deploy.session import LoopConfig
 from sim2real.deploy.worlds import CameraWorld
 from sim2real.envs.pick import PickServo, lift_goal
 from sim2real.errors import ConfigError
 from sim2real.held_out import EvalTarget, held_out_placements
+
+from .conftest import FAST, LOCKSTEP  # type: ignore[import-not-found]
 
 
 def _teacher() -> tuple[TruthTeacher, Any, Any]:
@@ -37,8 +39,8 @@ def test_the_teacher_picks_through_the_sim_loop_and_sets_the_cube_down() -> None
     teacher, io, target = _teacher()
     placements = tuple(held_out_placements(target, 3))
     result = run_policy(
-        teacher, io, load_spec(), DeployOptions(backend="sim"),
-        LoopConfig(episodes=3, placements=placements),
+        teacher, io, load_spec(), LOCKSTEP,
+        LoopConfig(episodes=3, placements=placements, **FAST),
     )  # fmt: skip
     assert [e.success for e in result.episodes] == [True, True, True]
     assert result.stopped_early is None

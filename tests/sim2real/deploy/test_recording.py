@@ -7,11 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from sim2real.cli.main import main
 from sim2real.datasets.lerobot import LeRobotDataset
 
 
+@pytest.mark.realtime
 def test_a_mock_deployment_records_a_lerobot_dataset_with_both_cameras(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -19,7 +21,7 @@ def test_a_mock_deployment_records_a_lerobot_dataset_with_both_cameras(
     args = [
         "deploy", "reach-ppo", "--backend", "mock", "--episodes", "2", "--json",
         "--record-dataset", str(root), "--log", str(tmp_path / "log.npz"),
-        "--watchdog-s", "10", "--start-timeout", "60",
+        "--watchdog-s", str(scaled(10)), "--start-timeout", str(scaled(60)),
     ]  # fmt: skip
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])

@@ -17,7 +17,8 @@ from sim2real.train.config import EVAL_SEED_BASE
 
 def test_a_sim_deploy_places_the_cubes_of_the_held_out_episodes(tmp_path: Path) -> None:
     log = tmp_path / "held_out.npz"
-    args = ["deploy", "pick-ppo", "--backend", "sim", "--episodes", "2", "--steps", "2",
+    args = ["deploy", "pick-ppo", "--backend", "sim", "--sim-clock", "lockstep",
+            "--episodes", "2", "--steps", "2",
             "--placements", "held-out", "--log", str(log), "--json"]  # fmt: skip
     assert main(args) == 0
     rows = np.load(log)

@@ -115,6 +115,41 @@ def test_the_period_steps_need_an_episode(spec: ArmSpec, reach_io: PolicyIO) -> 
         session.sense()
 
 
+def test_objects_the_arm_hides_are_looked_for_from_park_without_waiting_half_the_timeout(
+    spec: ArmSpec, reach_io: PolicyIO, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A world that placed the objects knows they are there: unseen for ``LOOK_FROM_PARK_S``
+    (at home the arm may hide one), the arm parks, and homes again once they are seen; it does
+    not wait out half of a start timeout sized for a slow machine. The perception here sees the
+    target only from park."""
+    import time
+
+    from sim2real.envs.contract import Percept
+
+    monkeypatch.setattr(ControlSession, "LOOK_FROM_PARK_S", 0.2)
+    timeout_s = 60.0  # half of it is far beyond any stall a loaded machine makes
+    with _session(spec, reach_io, LoopConfig(episode_steps=2, start_timeout_s=timeout_s)) as s:
+        parked_at: list[float] = []
+        real_park, real_perceive = s.arm.park, s.perception.perceive
+
+        def park() -> Any:
+            parked_at.append(time.monotonic())
+            return real_park()
+
+        def perceive(state: Any, command_s: float) -> Percept:
+            seen = real_perceive(state, command_s)
+            return seen if parked_at else Percept(seen.tool_m, {})  # hidden until parked
+
+        monkeypatch.setattr(s.arm, "park", park)
+        monkeypatch.setattr(s.perception, "perceive", perceive)
+        start = time.monotonic()
+        s.begin_episode(0, np.random.default_rng(0))
+        assert len(parked_at) == 1 and parked_at[0] - start < 0.5 * timeout_s
+        home = spec.actuator_home_rad  # home again before the episode's first period
+        np.testing.assert_allclose(s.arm.read_state().positions_rad, home, atol=0.05)
+        assert s.contract is not None and s.step == 0
+
+
 def _functions(path: Path) -> Iterator[tuple[str, int]]:
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):

@@ -6,13 +6,14 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from timescale import scaled
 
 from hardware.spec import ArmSpec, load_spec
 from sim2real.deploy.policy_io import PolicyIO, io_for
 
 # mock runs: a relaxed watchdog (pytest -n 2 on a loaded machine may run a period long: these
 # tests judge the chain, not the timing) and a generous wait for the first sighting
-MOCK = {"backend": "mock", "watchdog_s": 2.0}
+MOCK = {"backend": "mock", "watchdog_s": scaled(2.0)}
 
 
 @pytest.fixture(scope="session")

@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from timescale import scaled
 
 from hardware.arm import off_pose_limit_rad
 from hardware.spec import ArmSpec
@@ -29,8 +30,10 @@ from tests.sim2real.deploy.conftest import pick_policy
 
 from .conftest import MOCK, ik_reach  # type: ignore[import-not-found]
 
-HANG_S = 60.0  # bounds that only turn a hang into a failure
-SIM = DeployOptions(backend="sim")
+HANG_S = scaled(60.0)  # bounds that only turn a hang into a failure
+# behaviour on SimArm's lockstep clock: one control period of physics per step, whatever the
+# machine's load (the mock tests below are the realtime set)
+SIM = DeployOptions(backend="sim", sim_clock="lockstep")
 
 
 @pytest.fixture
@@ -87,9 +90,10 @@ def _children() -> set[int]:
     return out
 
 
+@pytest.mark.realtime
 def test_check_env_passes_on_the_mock_backend_over_a_pty(spec: ArmSpec, reach_io: PolicyIO) -> None:
     children = _children()
-    env = ArmEnv(reach_io, spec, DeployOptions(**MOCK), ArmEnvConfig(start_timeout_s=60))
+    env = ArmEnv(reach_io, spec, DeployOptions(**MOCK), ArmEnvConfig(start_timeout_s=scaled(60)))
     emulator = env.arm.emulator  # type: ignore[attr-defined]
     assert _children() - children, "the mock arm and its cameras run in processes of their own"
     try:
@@ -112,6 +116,7 @@ def test_check_env_passes_on_the_mock_backend_over_a_pty(spec: ArmSpec, reach_io
     _wait(lambda: _children() <= children, "the mock's processes end")
 
 
+@pytest.mark.realtime
 def test_cameras_that_stop_mid_run_leave_the_arm_parked_and_torque_off(
     spec: ArmSpec, reach_io: PolicyIO
 ) -> None:
@@ -119,8 +124,8 @@ def test_cameras_that_stop_mid_run_leave_the_arm_parked_and_torque_off(
     raises one line, and the arm was held, parked and switched off before it did."""
     from hardware.errors import HardwareError
 
-    opts = DeployOptions(camera_fails_after_s=4.0, camera_timeout_s=1.0, **MOCK)
-    env = ArmEnv(reach_io, spec, opts, ArmEnvConfig(start_timeout_s=60))
+    opts = DeployOptions(camera_fails_after_s=4.0, camera_timeout_s=scaled(1.0), **MOCK)
+    env = ArmEnv(reach_io, spec, opts, ArmEnvConfig(start_timeout_s=scaled(60)))
     try:
         with pytest.raises(HardwareError, match="cameras stopped delivering frames") as err:
             deadline = time.monotonic() + HANG_S

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from timescale import scaled
 
 from hardware.spec import ArmSpec
 from sim2real.cli.main import main
@@ -24,7 +25,7 @@ from sim2real.finetune.runner import FinetuneOptions, finetune
 from .conftest import MOCK  # type: ignore[import-not-found]
 
 ROOT = Path(__file__).resolve().parents[3]
-HANG_S = 240.0  # only turns a hang into a failure
+HANG_S = scaled(240.0)  # only turns a hang into a failure
 
 
 def _options(out: Path, **kw: Any) -> FinetuneOptions:
@@ -37,7 +38,7 @@ def _options(out: Path, **kw: Any) -> FinetuneOptions:
         "learning_starts": 20,
         "publish_every": 10,
         "keys": False,
-        "start_timeout_s": 60.0,
+        "start_timeout_s": scaled(60.0),
     }
     return FinetuneOptions(**{**base, **kw})
 
@@ -60,6 +61,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
+@pytest.mark.realtime  # ~40 s idle: two mock runs with a learner process each, then export
 def test_mock_finetune_learns_within_limits_and_resume_continues(
     tmp_path: Path, spec: ArmSpec, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -149,7 +151,7 @@ def test_sigterm_mid_finetune_exits_143_checkpoints_and_resumes(tmp_path: Path) 
     cmd = [
         sys.executable, "-m", "sim2real", "finetune", "reach-ddpg", "--out", str(out),
         "--learning-starts", "20", "--watchdog-s", str(MOCK["watchdog_s"]),
-        "--start-timeout", "60", "--json", "--no-keys", "--minutes", "10",
+        "--start-timeout", str(scaled(60)), "--json", "--no-keys", "--minutes", "10",
     ]  # fmt: skip
     proc = subprocess.Popen(
         cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -199,7 +201,7 @@ def test_estop_key_through_a_pty_stops_the_arm_keeps_a_checkpoint(tmp_path: Path
     cmd = [
         sys.executable, "-m", "sim2real", "finetune", "reach-ddpg", "--out", str(out),
         "--learning-starts", "20", "--watchdog-s", str(MOCK["watchdog_s"]),
-        "--start-timeout", "60", "--json", "--keys", "--minutes", "10",
+        "--start-timeout", str(scaled(60)), "--json", "--keys", "--minutes", "10",
     ]  # fmt: skip
     master, slave = os.openpty()
     proc = subprocess.Popen(
@@ -255,7 +257,7 @@ def test_sigkill_mid_finetune_the_learner_dies_and_resume_loses_at_most_one_epis
     cmd = [
         sys.executable, "-m", "sim2real", "finetune", "reach-ddpg", "--out", str(out),
         "--learning-starts", "20", "--watchdog-s", str(MOCK["watchdog_s"]),
-        "--start-timeout", "60", "--json", "--no-keys", "--minutes", "10",
+        "--start-timeout", str(scaled(60)), "--json", "--no-keys", "--minutes", "10",
     ]  # fmt: skip
     proc = subprocess.Popen(
         cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,

@@ -84,6 +84,16 @@ def test_keys_arrive_through_a_pty_and_each_is_logged_with_both_times(
         assert set(r.to_dict()) == {"action", "key", "monotonic_s", "utc"}
 
 
+def test_the_estop_flag_is_up_while_the_arm_is_told(tty_pair: tuple[int, int]) -> None:
+    """The arm's e-stop holds for a while before it returns: a learner refused by the latched
+    arm meanwhile must already read ``estopped`` (and stop as the key says, not as an error)."""
+    _, slave = tty_pair
+    seen: list[bool] = []
+    keys = HumanKeys(slave, on_estop=lambda reason: seen.append(keys.estopped))
+    keys.press(b"e")  # the key thread's call, made here: no thread, no timing
+    assert seen == [True] and keys.estopped
+
+
 def test_waiting_for_a_reset_holds_the_arm_until_the_key(tty_pair: tuple[int, int]) -> None:
     master, slave = tty_pair
     holds: list[float] = []

@@ -89,7 +89,8 @@ def test_policies_cli_lists_and_shows_cards(capsys: pytest.CaptureFixture[str]) 
 
 
 def test_a_shipped_policy_deploys_by_name(capsys: pytest.CaptureFixture[str]) -> None:
-    args = ["deploy", "reach-ppo", "--backend", "sim", "--episodes", "1", "--json"]
+    args = ["deploy", "reach-ppo", "--backend", "sim", "--sim-clock", "lockstep",
+            "--episodes", "1", "--json"]  # fmt: skip
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert summary["task"] == "reach" and summary["episodes"] == 1

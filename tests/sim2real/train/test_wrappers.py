@@ -80,7 +80,13 @@ def test_the_curriculum_applies_to_training_envs_only(
     from sim2real.train.runner import _Session
 
     run = tmp_path / "run"
-    tiny("ppo", run, env="pick", extra=["start_curriculum.held_prob=1.0"])
+    # ppo_pick's DAgger stage cut to one short round: the curriculum is what is judged here
+    dagger = [
+        "dagger.iterations=1",
+        "dagger.steps_per_iteration=8",
+        "dagger.updates_per_iteration=1",
+    ]
+    tiny("ppo", run, env="pick", extra=["start_curriculum.held_prob=1.0", *dagger])
     config = RunDir(run).read_config()
     assert config["train"]["start_curriculum"] == {"held_prob": 1.0}
     # The training envs the runner builds start held ...
