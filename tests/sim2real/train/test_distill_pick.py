@@ -119,7 +119,7 @@ def test_the_preset_distills_pick_pixels_and_logs_the_teachers_agreement(tmp_pat
             "checkpoint_every=10000",
         ],
     )
-    assert cfg.env_kwargs["safety_filter"] is True and cfg.hyperparams["teacher"] == "pick_ppo"
+    assert cfg.env_kwargs["safety_filter"] is True and cfg.hyperparams["teacher"] == "pick_servo"
     train(cfg)
     rows = [json.loads(line) for line in RunDir(run_dir).metrics_path.read_text().splitlines()]
     logged = [r for r in rows if "train/teacher_agreement" in r]
