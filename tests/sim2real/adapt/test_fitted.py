@@ -73,8 +73,10 @@ def test_on_the_emulated_plant_the_fitted_host_reads_the_physical_angles(name: s
     # a measured reading is a 10-bit pot read through the firmware's counts -> µs map: one
     # count spans ~3.3 µs, more than the servo's 1 µs resolution
     lo, hi = NOMINAL_POT_COUNTS
-    count_rad = (SPEC.servo.pulse_max_us - SPEC.servo.pulse_min_us) / (hi - lo) * (
-        SPEC.servo.range_rad / (SPEC.servo.pulse_max_us - SPEC.servo.pulse_min_us)
+    count_rad = (
+        (SPEC.servo.pulse_max_us - SPEC.servo.pulse_min_us)
+        / (hi - lo)
+        * (SPEC.servo.range_rad / (SPEC.servo.pulse_max_us - SPEC.servo.pulse_min_us))
     )
     res = 2 * SPEC.servo.resolution_rad + count_rad / 2
     np.testing.assert_allclose(nominal, truth - plant.offsets_rad(), atol=res)
