@@ -40,10 +40,12 @@ class ObjectEstimate:
 @dataclass(frozen=True)
 class Percept:
     """One period's estimates: the tool, and the objects the task asked for (missing: never
-    seen since the episode began)."""
+    seen since the episode began). ``tool_blind_s``: how long the cameras have not confirmed
+    the tool (the wrist plate), 0 where the tool is not camera-measured (truth, or FK only)."""
 
     tool_m: np.ndarray | None
     objects: Mapping[str, ObjectEstimate] = field(default_factory=dict)
+    tool_blind_s: float = 0.0
 
     def position(self, name: str) -> np.ndarray | None:
         est = self.objects.get(name)
