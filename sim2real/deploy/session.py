@@ -206,6 +206,7 @@ class ControlSession:
         self._judged = True  # the last command has been judged (or there is none)
         self._t_sent = 0.0
         self._missing_since: dict[str, float] = {}  # objects whose track was lost mid-episode
+        self._begun_s = 0.0  # when the episode's first period started (monotonic)
 
     # ---- an episode ---------------------------------------------------------------------------
     def new_contract(self) -> DeployContract:
@@ -308,6 +309,7 @@ class ControlSession:
         self.step = self.blind_periods = 0
         self.sent_rad, self.reason, self._judged = None, None, True
         self._missing_since = {}
+        self._begun_s = time.monotonic()
         self.clock.start()
         if self.pipelined:
             self.set_pipelined(True)
@@ -366,7 +368,8 @@ class ControlSession:
     def check_blind(self, contract: DeployContract, percept: Percept, now_s: float) -> None:
         """Mid-episode, the tool or an object unseen longer than ``blind_limit_s`` (an object
         whose track was lost counts from its loss) raises ``DeployStopError``: the driver's
-        safe stop holds, then parks."""
+        safe stop holds, then parks. Counted from the episode's start at most: before it, the
+        arm may have parked out of the cameras' way while it looked for the objects."""
         limit = self.config.blind_limit_s
         if limit is None:
             return
@@ -377,7 +380,8 @@ class ControlSession:
                 b = now_s - self._missing_since.setdefault(name, now_s)
             else:
                 self._missing_since.pop(name, None)
-            blind[name] = b
+            blind[name] = min(b, now_s - self._begun_s)
+        blind["tool"] = min(blind["tool"], now_s - self._begun_s)
         worst = max(blind, key=lambda k: blind[k])
         if blind[worst] > limit:
             raise DeployStopError(
