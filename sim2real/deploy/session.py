@@ -374,7 +374,11 @@ class ControlSession:
         if limit is None:
             return
         blind = {"tool": percept.tool_blind_s}
+        hidden = contract.expected_hidden()
         for name in contract.objects:
+            if name in hidden:  # carried in the fingers: the task's estimate stands in
+                self._missing_since.pop(name, None)
+                continue
             b = percept.blind_s(name)
             if math.isinf(b):
                 b = now_s - self._missing_since.setdefault(name, now_s)

@@ -151,6 +151,12 @@ class DeployContract(ABC):
         (its env's shaping, if any, reads MuJoCo state only)."""
         return None
 
+    def expected_hidden(self) -> frozenset[str]:
+        """Objects the task, as judged last period, expects the cameras to lose (a cube carried
+        in the fingers): the session's blind limit does not count them, since the task's own
+        estimate (the carry rule) stands in for the cameras while they hide."""
+        return frozenset()
+
     def put_down(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> np.ndarray | None:
         """Actuator targets that set down what the arm holds before it homes or parks (the
         gripper still closed; the session opens it there), or None when it holds nothing.

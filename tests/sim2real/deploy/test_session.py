@@ -222,6 +222,38 @@ def test_an_object_or_tool_unseen_past_the_blind_limit_stops_the_episode(
             session.check_blind(contract, Percept(tool, {}), t0 + 5.1)
 
 
+def test_a_cube_carried_in_the_fingers_is_not_held_against_the_blind_limit(
+    spec: ArmSpec, pick_io: PolicyIO
+) -> None:
+    """Hidden in fingers that hold it, the cube is where the carry rule puts it (the tool): the
+    limit counts it again once the fingers let go."""
+    from sim2real.deploy.session import DeployStopError
+    from sim2real.envs.contract import ObjectEstimate, Percept
+
+    with _session(spec, pick_io, LoopConfig(episode_steps=2, blind_limit_s=2.0)) as session:
+        session.begin_episode(0, np.random.default_rng(0))
+        contract = session.contract
+        assert contract is not None and spec.gripper is not None
+        t0 = session._begun_s
+        tool = np.array([0.15, 0.0, 0.05])
+        n = spec.n_joints
+        commanded = np.append(spec.actuator_home_rad[:n], spec.gripper.closed_rad)
+        span = spec.gripper.open_rad - spec.gripper.closed_rad
+        blocked = commanded.copy()  # the fingers stopped half open: they hold something
+        blocked[n] = spec.gripper.closed_rad + 0.5 * span
+        contract.observe_arm(blocked, commanded)
+        at_tool = ObjectEstimate(tool.copy(), blind_s=0.0)
+        contract.readings(Percept(tool, {"cube": at_tool}), 0)
+        assert contract.expected_hidden() == frozenset({"cube"})
+        hidden = ObjectEstimate(tool.copy(), blind_s=2.5)
+        session.check_blind(contract, Percept(tool, {"cube": hidden}), t0 + 3.0)  # carried
+        contract.observe_arm(commanded, commanded)  # the fingers shut: the cube is gone
+        contract.readings(Percept(tool, {"cube": hidden}), 1)
+        assert contract.expected_hidden() == frozenset()
+        with pytest.raises(DeployStopError, match=r"^blind: cube unseen"):
+            session.check_blind(contract, Percept(tool, {"cube": hidden}), t0 + 3.0)
+
+
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
 def test_a_blind_limit_that_is_not_a_time_is_refused_naming_it(bad: float) -> None:
     with pytest.raises(ConfigError, match=rf"blind_limit_s {bad} must be > 0"):
