@@ -14,7 +14,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -94,31 +94,36 @@ class OpenCVStereoCameras:
     """Two ``cv2.VideoCapture`` devices, each read by its own thread at the camera's rate.
 
     A pair is the newest frame of each camera; its capture time is the older of the two (the
-    cameras are not hardware-synchronised: ``skew_s`` of the last pair is reported).
+    cameras are not hardware-synchronised: ``skew_s`` of the last pair is reported). A camera
+    is a device index or anything ``cv2.VideoCapture`` opens by name (a video file, an image
+    sequence such as ``left_%03d.png``, a stream URL): the same capture path, replayable.
     """
 
     def __init__(
-        self, indices: tuple[int, int], size: tuple[int, int], timeout_s: float = 1.0
+        self, indices: tuple[int | str, int | str], size: tuple[int, int], timeout_s: float = 1.0
     ) -> None:
         import cv2
 
         self.timeout_s = timeout_s
         self._indices = indices
         self._size = size
-        self._caps = []
+        self._caps: list[Any] = []
+        self._threads: list[threading.Thread] = []
+        self._running = False
         for i in indices:
             cap = cv2.VideoCapture(i)
             if not cap.isOpened():
-                self.close()
-                raise HardwareError(f"camera {i} could not be opened (is it plugged in and free?)")
+                cap.release()
+                self.close()  # the cameras opened so far are released
+                raise HardwareError(
+                    f"camera {i!r} could not be opened (is it plugged in and free?)"
+                )
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, size[0])
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, size[1])
             cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the newest frame, not a queue of old ones
             self._caps.append(cap)
         self._frames: list[tuple[np.ndarray, float] | None] = [None, None]
         self._lock = threading.Lock()
-        self._running = False
-        self._threads: list[threading.Thread] = []
         self._seq = 0
         self._error: str | None = None
         self.skew_s = 0.0
@@ -140,7 +145,7 @@ class OpenCVStereoCameras:
                 continue
             if (frame.shape[1], frame.shape[0]) != self._size:
                 self._error = (
-                    f"camera {self._indices[side]} delivers {frame.shape[1]}x{frame.shape[0]}, "
+                    f"camera {self._indices[side]!r} delivers {frame.shape[1]}x{frame.shape[0]}, "
                     f"but the calibration is for {self._size[0]}x{self._size[1]}: recalibrate or "
                     "set the camera resolution"
                 )

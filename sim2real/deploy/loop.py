@@ -239,6 +239,7 @@ class DeployLoop:
                     raise
             except Exception as exc:  # any error: hold, park, torque off; keep the log
                 self._stopped = f"{type(exc).__name__}: " + (str(exc).splitlines() or [""])[0]
+                log.error("run stopped: %s", self._stopped)  # the one line the log keeps
                 if "watchdog" in str(exc):
                     self._watchdog_trips += 1
                 try:

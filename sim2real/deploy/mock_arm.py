@@ -215,6 +215,14 @@ class MockArmProcess(PtyDevice):
         """The USB cable is pulled: the port goes away under the host (the process lives on)."""
         self.call("unplug")
 
+    def brownout(self) -> None:
+        """Fault injection: the board's supply dips and it reboots (torque off, RAM lost)."""
+        self.call("brownout")
+
+    def jam(self, *names: str) -> None:
+        """Fault injection: the named servos jam where their horns are (none: all free)."""
+        self.call("jam", *names)
+
     def true_positions_rad(self) -> np.ndarray:
         return np.asarray(self.call("true_positions_rad"), dtype=float)
 
@@ -299,6 +307,8 @@ def _ops(emulator: Any, physics: Any) -> dict[str, Callable[..., Any]]:
         "clear": physics.clear,
         "applied": lambda kind=None: emulator.applied(kind),
         "unplug": lambda: emulator.unplug(),
+        "brownout": lambda: emulator.brownout(),
+        "jam": lambda *names: emulator.jam(*names),
         "true_positions_rad": lambda: np.asarray(emulator.true_positions_rad()),
         "stats": lambda: emulator.stats(),
     }

@@ -21,10 +21,12 @@ newest pair saw it), as the env's sensor model counts it. ``OraclePerception`` r
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import threading
 import time
+import zlib
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -45,6 +47,8 @@ from sim2real import scene_names as names
 from sim2real.deploy.frames import FramePair, FrameSource, check_fresh_s
 from sim2real.envs.contract import ObjectEstimate, Percept
 from sim2real.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 # The target plate stands still for an episode: a quiet model that coasts through occlusion
 # (the gripper covers the plate exactly when it arrives).
@@ -231,6 +235,7 @@ class PairResult:
     capture_s: float
     plate_m: np.ndarray | None  # the wrist plate, where this pair measured it
     tracks: dict[str, Track]
+    same_since_s: float = -math.inf  # the capture time since which the images are unchanged
 
 
 class PairTracker:
@@ -257,15 +262,28 @@ class PairTracker:
                 self.trackers.append(factory(rig, base_T_left, layout))
         # every name a tracker may report (a seam tracker reports both ends)
         self.names = tuple(n for t in self.trackers for n in t.names)
+        self._digest: int | None = None
+        self._same_since_s = -math.inf
 
     def observe(self, pair: FramePair) -> PairResult:
+        digest = image_digest(pair)
+        if digest != self._digest:  # a sensor's noise alone changes a live camera's image
+            self._digest, self._same_since_s = digest, pair.capture_s
         self.ee.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
         meas = self.ee.last_measurement
         tracks: dict[str, Track] = {}
         for tracker in self.trackers:
             tracks.update(tracker.observe(pair))
         plate = None if meas is None else np.asarray(meas.position_m, dtype=float).copy()
-        return PairResult(pair.capture_s, plate, tracks)
+        return PairResult(pair.capture_s, plate, tracks, self._same_since_s)
+
+
+def image_digest(pair: FramePair, stride: int = 4) -> int:
+    """A cheap fingerprint of both images (every ``stride``-th pixel): equal fingerprints on
+    pairs captured while the arm moved mean the images did not change (a frozen camera)."""
+    left = np.ascontiguousarray(pair.left_bgr[::stride, ::stride])
+    right = np.ascontiguousarray(pair.right_bgr[::stride, ::stride])
+    return zlib.crc32(right.data, zlib.crc32(left.data))
 
 
 @dataclass(frozen=True)
@@ -279,6 +297,7 @@ class Snapshot:
     tracks: dict[str, Track]
     ee_seen: bool
     pairs: int  # pairs measured since the worker started
+    same_since_s: float = -math.inf  # capture time since which the images are unchanged
 
 
 # (epoch, capture time, the wrist plate's position): each measurement of the plate, in order
@@ -356,7 +375,7 @@ class ThreadWorker:
                         self._plates.append((epoch, result.capture_s, result.plate_m))
                     self._snapshot = Snapshot(
                         epoch, seq, result.capture_s, result.tracks, result.plate_m is not None,
-                        pairs,
+                        pairs, result.same_since_s,
                     )  # fmt: skip
         except BaseException as exc:  # surfaced by poll(): perception must not die silently
             self._error = exc
@@ -409,6 +428,19 @@ class StereoPerception:
 
     BIAS_GAIN = 0.3  # per measured pair: the correction settles within a few frames
     WORKER_NICE = 5  # the control loop wins the core when both are runnable
+    # The wrist plate's gate: a plate measurement whose tool disagrees with forward kinematics
+    # (as corrected so far) by more than this is a false detection (a marker decoded where the
+    # plate is not, a bad stereo match): rejected, counted, logged, never fed to the
+    # correction. Above what the correction absorbs between two frames (triangulation noise of
+    # a few mm, the readings' interpolation to the capture time while moving) and below a
+    # false detection's error; a spec whose geometry is off by more than this never gets a
+    # plate accepted, and the blind limit stops the run saying so.
+    PLATE_GATE_M = 0.04
+    # Frozen cameras: the same image for this long while the joints moved this far (a live
+    # camera's image changes with its noise alone; a still rendered scene may repeat exactly,
+    # so a still arm proves nothing).
+    FROZEN_LIMIT_S = 1.0
+    FROZEN_MOTION_RAD = 0.05
 
     def __init__(
         self,
@@ -421,8 +453,13 @@ class StereoPerception:
         tracker: TrackerConfig | None = None,
         yaw_sign: float = 1.0,
         worker: str = "auto",
+        plate_gate_m: float | None = None,
     ) -> None:
         self.frames, self.rig, self.spec = frames, rig, spec
+        gate = self.PLATE_GATE_M if plate_gate_m is None else float(plate_gate_m)
+        if not (math.isfinite(gate) and gate > 0.0):
+            raise ConfigError(f"plate_gate_m {plate_gate_m!r} must be a finite distance > 0")
+        self.plate_gate_m = gate
         self.layout = layout or MarkerLayout.for_spec(spec)
         unknown = [o for o in objects if o not in OBJECTS]
         if unknown:
@@ -449,7 +486,13 @@ class StereoPerception:
         self._ee_cfg = replace(cfg, max_coast_s=min(cfg.max_coast_s, 0.1))
         self._offset = np.asarray(self.layout.ee_marker_p_tool_m, dtype=float)
         self._yaw_sign = spec.joints[0].sign * yaw_sign
-        self.detections = {"pairs": 0, "periods": 0, "ee": 0, "fk_fallback": 0, "reused": 0}
+        # "plate_rejected": plate measurements outside the gate (false detections)
+        self.detections = {
+            "pairs": 0, "periods": 0, "ee": 0, "fk_fallback": 0, "reused": 0, "plate_rejected": 0,
+        }  # fmt: skip
+        self._plate_seen_s = -math.inf  # capture time of the last accepted plate (or the reset)
+        self._rejecting = 0  # plate measurements rejected in a row
+        self._last_rejected = False
         self._q_hist: deque[tuple[float, np.ndarray]] = deque(maxlen=400)  # ~20 s at 20 Hz
         self._epoch = 0
         self._snapshot = _EMPTY
@@ -472,8 +515,9 @@ class StereoPerception:
 
     @property
     def ee_seen(self) -> bool:
-        """The last percept's tool came from the wrist marker (False: forward kinematics)."""
-        return self._snapshot.ee_seen
+        """The last percept's tool came from the wrist marker (False: forward kinematics, or a
+        plate measurement the gate rejected)."""
+        return self._snapshot.ee_seen and not self._last_rejected
 
     @property
     def worker_pid(self) -> int | None:
@@ -512,33 +556,87 @@ class StereoPerception:
         else:
             self._worker = ThreadWorker(self.frames, self.new_tracker, self.WORKER_NICE)
         self._worker.start()
+        self._plate_seen_s = time.monotonic()
 
-    def _correct_fk(self, bias: np.ndarray, plate_m: np.ndarray, capture_s: float) -> np.ndarray:
-        """The camera measures the tool late but without the spec's geometry errors; the joint
-        readings are fresh. Compare the plate with forward kinematics of the readings at the
-        capture time and keep the (slowly varying) difference as a correction."""
+    def _q_at(self, t_s: float) -> np.ndarray | None:
+        """The joint readings interpolated to ``t_s`` (None: no reading from around then)."""
         hist = list(self._q_hist)
-        if not hist or not hist[0][0] <= capture_s <= hist[-1][0] + 0.1:
-            return bias  # no joint reading from around the capture time (the first frames)
+        if not hist or not hist[0][0] <= t_s <= hist[-1][0] + 0.1:
+            return None
         times = np.array([t for t, _ in hist])
         qs = np.array([q for _, q in hist])
-        q_cap = np.array([np.interp(capture_s, times, qs[:, j]) for j in range(qs.shape[1])])
+        return np.array([np.interp(t_s, times, qs[:, j]) for j in range(qs.shape[1])])
+
+    def _plate_error(self, plate_m: np.ndarray, capture_s: float) -> np.ndarray | None:
+        """The camera measures the tool late but without the spec's geometry errors; the joint
+        readings are fresh. The plate's tool against forward kinematics of the readings at the
+        capture time (None: no reading from around the capture time, the first frames)."""
+        q_cap = self._q_at(capture_s)
+        if q_cap is None:
+            return None
         yaw = self._yaw_sign * float(q_cap[0])
         c, s = math.cos(yaw), math.sin(yaw)
         dx, dy, dz = self._offset
         tool = plate_m + np.array([c * dx - s * dy, s * dx + c * dy, dz])
-        error = tool - self.spec.forward_kinematics(q_cap)
+        return np.asarray(tool - self.spec.forward_kinematics(q_cap), dtype=float)
+
+    def _plate(self, plate_m: np.ndarray, capture_s: float) -> None:
+        """One plate measurement through the gate: inside it, the correction (the slowly
+        varying camera-vs-FK difference) moves by ``BIAS_GAIN`` of it (the run's first sample
+        is taken whole); outside, it is rejected, counted and logged (the first of a run of
+        rejections, and the plate's return), and the tool stays on FK."""
+        error = self._plate_error(plate_m, capture_s)
+        if error is None:
+            return
+        jump_m = float(np.linalg.norm(error - self._bias))
+        if jump_m > self.plate_gate_m:
+            self.detections["plate_rejected"] += 1
+            self._last_rejected = True
+            if self._rejecting == 0:
+                log.warning(
+                    "wrist plate rejected: %.3f m from forward kinematics (gate %.3f m); the "
+                    "tool stays on FK",
+                    jump_m,
+                    self.plate_gate_m,
+                )
+            self._rejecting += 1
+            return
+        if self._rejecting:
+            log.info("wrist plate accepted again after %d rejected", self._rejecting)
+        self._rejecting, self._last_rejected = 0, False
         self._bias_n += 1
-        if self._bias_n == 1:
-            return error
-        return bias + self.BIAS_GAIN * (error - bias)
+        self._bias = (
+            error if self._bias_n == 1 else self._bias + self.BIAS_GAIN * (error - self._bias)
+        )
+        self._plate_seen_s = max(self._plate_seen_s, capture_s)
+        self.detections["ee"] += 1
+
+    def _check_not_frozen(self, snap: Snapshot) -> None:
+        """Images unchanged for ``FROZEN_LIMIT_S`` of capture time while the joints moved
+        ``FROZEN_MOTION_RAD``: the camera repeats a frame under fresh timestamps."""
+        still_s = snap.capture_s - snap.same_since_s
+        if not (math.isfinite(still_s) and still_s > self.FROZEN_LIMIT_S):
+            return
+        q_then = self._q_at(snap.same_since_s)
+        if q_then is None and self._q_hist:
+            q_then = self._q_hist[0][1]  # frozen since before the oldest reading kept
+        q_now = self._q_at(snap.capture_s)
+        if q_then is None or q_now is None:
+            return
+        moved = float(np.max(np.abs(q_now - q_then)))
+        if moved > self.FROZEN_MOTION_RAD:
+            raise HardwareError(
+                f"cameras frozen: the same image for {still_s:.2f} s while the joints moved "
+                f"{moved:.2f} rad (limit {self.FROZEN_LIMIT_S:.1f} s)"
+            )
 
     # ---- the control loop's side ------------------------------------------------------------
     def reset(self) -> None:
         """New episode: the objects were placed anew. Tracks restart from the next pair, and
         the first plate measurement replaces the FK correction."""
         self._epoch += 1
-        self._bias_n = 0
+        self._plate_seen_s = time.monotonic()
+        self._rejecting, self._last_rejected = 0, False
         if self._worker is not None:
             self._worker.reset(self._epoch, time.monotonic())
 
@@ -563,18 +661,19 @@ class StereoPerception:
         check_fresh_s(self.frames, capture_s, command_s)
         for epoch, t_s, plate_m in plates:
             if epoch == self._epoch:
-                self._bias = self._correct_fk(self._bias, plate_m, t_s)
-                self.detections["ee"] += 1
+                self._plate(plate_m, t_s)
         self.detections["periods"] += 1
         self.detections["pairs"] = snap.pairs
         if snap.epoch != self._epoch:  # nothing measured since the reset yet
             snap = Snapshot(self._epoch, -1, -math.inf, {}, False, snap.pairs)
+        self._check_not_frozen(snap)
         self._snapshot = snap
         ee = self.spec.forward_kinematics(q_now) + self._bias
-        if not snap.ee_seen:
+        if not self.ee_seen:
             self.detections["fk_fallback"] += 1
         objects = {name: track.at(command_s) for name, track in snap.tracks.items()}
-        return Percept(ee, objects)
+        tool_blind_s = max(0.0, max(capture_s, snap.capture_s) - self._plate_seen_s)
+        return Percept(ee, objects, tool_blind_s)
 
     def close(self) -> None:
         if self._worker is not None:

@@ -41,8 +41,8 @@ from sim2real.deploy.perception import (
 from sim2real.deploy.render_process import SharedFrames
 from sim2real.envs.contract import ObjectEstimate
 
-# header (float64): [lock, epoch, seq, capture_s, ee_seen, (unused), pairs, plates written]
-_LOCK, _EPOCH, _SEQ, _CAPTURE, _EE_SEEN, _, _PAIRS, _PLATES = range(8)
+# header (float64): [lock, epoch, seq, capture_s, ee_seen, same_since_s, pairs, plates written]
+_LOCK, _EPOCH, _SEQ, _CAPTURE, _EE_SEEN, _SAME_SINCE, _PAIRS, _PLATES = range(8)
 _HEADER = 8
 _RING = 32  # plate measurements kept for the parent (> 1 s of pairs at 30 fps)
 _RING_FIELDS = 5  # epoch, capture_s, x, y, z
@@ -89,6 +89,7 @@ def _publish(
     with child.seqlock(block, _LOCK):
         block[_EPOCH], block[_SEQ], block[_CAPTURE] = epoch, seq, result.capture_s
         block[_EE_SEEN] = float(result.plate_m is not None)
+        block[_SAME_SINCE] = result.same_since_s
         block[_PAIRS] = pairs
         if result.plate_m is not None:
             n = int(block[_PLATES])
@@ -228,7 +229,7 @@ class PerceptionProcess:
                 tracks[name] = Track(est, block[o + 4 : o + 7].copy(), capture)
         snap = Snapshot(
             int(block[_EPOCH]), int(block[_SEQ]), capture, tracks, block[_EE_SEEN] > 0.5,
-            int(block[_PAIRS]),
+            int(block[_PAIRS]), float(block[_SAME_SINCE]),
         )  # fmt: skip
         return snap, plates
 

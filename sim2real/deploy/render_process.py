@@ -33,9 +33,12 @@ if TYPE_CHECKING:
 _SLOT_FIELDS = 3
 _NEWEST, _PUBLISHED = 6, 7
 _HEADER = 8
-# state header (float64): [lock, t_s, command]; command 2: frozen (a dead camera)
-_STATE_HEADER = 3
-_FROZEN = 2.0
+# state header (float64): [lock, t_s, command, ghost yaw]; the command is a fault injected by
+# the host: 2 frozen (no new frames: a dead camera), 3 stuck (the last image again with fresh
+# capture times: a driver that repeats its buffer), 4 ghost (the arm drawn turned by the ghost
+# yaw about the base: the cameras see the wrist plate where the arm is not, a false detection)
+_STATE_HEADER = 4
+_FROZEN, _STUCK, _GHOST = 2.0, 3.0, 4.0
 
 
 @dataclass(frozen=True)
@@ -104,14 +107,20 @@ def _render_main(channel: child.ChildChannel) -> None:
     frames = FrameBlock(cfg.height_px, cfg.width_px, name=frames_name)
     renderer = FastRenderer(model, cfg.width_px, cfg.height_px)
     period = 1.0 / cfg.fps
+    yaw_adr = int(model.jnt_qposadr[model.body_jntadr[model.body("turret").id]])
+    last: tuple[np.ndarray, np.ndarray] | None = None
     next_t = time.monotonic()
     channel.ready()
     try:
         while not channel.stop_requested():
             snap = state.snapshot()
-            if snap is not None and snap[1] >= 0.0 and snap[2] != _FROZEN:
+            if snap is not None and snap[1] >= 0.0 and snap[2] == _STUCK and last is not None:
+                frames.publish(*last, float(snap[1]))
+            elif snap is not None and snap[1] >= 0.0 and snap[2] != _FROZEN:
                 body = snap[_STATE_HEADER:]
                 data.qpos[:] = body[:nq]
+                if snap[2] == _GHOST:
+                    data.qpos[yaw_adr] += snap[3]
                 data.mocap_pos[:] = body[nq : nq + 3 * nmocap].reshape(nmocap, 3)
                 data.mocap_quat[:] = body[nq + 3 * nmocap :].reshape(nmocap, 4)
                 mujoco.mj_kinematics(model, data)
@@ -120,6 +129,7 @@ def _render_main(channel: child.ChildChannel) -> None:
                 left = renderer.render(data, cfg.cameras[0])[:, :, ::-1]
                 right = renderer.render(data, cfg.cameras[1])[:, :, ::-1]
                 frames.publish(left, right, float(snap[1]))
+                last = (left, right)
             next_t += period
             sleep = next_t - time.monotonic()
             if sleep > 0:
@@ -290,6 +300,22 @@ class RenderedStereoCameras:
         """Fault injection: the cameras stop delivering (the process lives on, as a hung USB
         camera does); the loop's freshness check must notice."""
         self._state.values[2] = _FROZEN
+
+    def stick(self) -> None:
+        """Fault injection: the cameras deliver their last image again and again with fresh
+        capture times (a driver repeating its buffer); perception's frozen check must notice."""
+        self._state.values[2] = _STUCK
+
+    def ghost(self, yaw_rad: float) -> None:
+        """Fault injection: the arm is drawn turned ``yaw_rad`` about the base (the wrist plate
+        seen where the arm is not: a false detection) until ``heal``; the plate gate must
+        reject it."""
+        self._state.values[3] = float(yaw_rad)
+        self._state.values[2] = _GHOST
+
+    def heal(self) -> None:
+        """The injected camera fault ends: frames as the scene is."""
+        self._state.values[2] = 0.0
 
     @property
     def pairs_published(self) -> int:

@@ -358,8 +358,8 @@ def run_policy(
             with control_thread_priority(opts.realtime, helpers=helpers):
                 result = loop.run()
         except BaseException:
-            if recorder is not None:  # nothing half-written: the episodes so far are dropped
-                recorder.abort()
+            if recorder is not None:  # the queue drained, the finished episodes kept whole
+                recorder.finish_after_fault()
             raise
         if recorder is not None:
             recorder.close()  # the episodes recorded, even after a Ctrl-C

@@ -58,6 +58,11 @@ class LoopConfig:
     dry_run: bool = False
     overrun_warn_fraction: float = 0.2  # warn when a period runs 20 % long
     start_timeout_s: float = 10.0  # how long an episode waits for its objects to be seen, still
+    # Mid-episode, the tool (its wrist plate) or an object unseen by the cameras for longer
+    # than this stops the run: held, then parked. Above the blind spells a run has (the
+    # gripper hides a carried cube: ~0.3 s on the mock, pick's reading saturates at 2 s),
+    # below what a policy acting on stale estimates should be let do. None: no limit.
+    blind_limit_s: float | None = 3.0
     # Episode i's objects (``DeployContract.placement``'s format), replayed instead of drawn:
     # env and deploy runs, or two backends, compare on the same placements (``Task.placement``).
     placements: tuple[Mapping[str, Any], ...] = field(default=(), compare=False)
@@ -71,6 +76,10 @@ class LoopConfig:
             )
         if not self.start_timeout_s > 0:
             raise ConfigError(f"start_timeout_s {self.start_timeout_s} must be > 0")
+        if self.blind_limit_s is not None and not (
+            math.isfinite(self.blind_limit_s) and self.blind_limit_s > 0
+        ):
+            raise ConfigError(f"blind_limit_s {self.blind_limit_s} must be > 0 (or None: no limit)")
         if self.placements and len(self.placements) < self.episodes:
             raise ConfigError(
                 f"placements: {len(self.placements)} given for {self.episodes} episodes"
@@ -196,6 +205,8 @@ class ControlSession:
         self.blind_periods = 0  # this episode's periods without a usable estimate
         self._judged = True  # the last command has been judged (or there is none)
         self._t_sent = 0.0
+        self._missing_since: dict[str, float] = {}  # objects whose track was lost mid-episode
+        self._begun_s = 0.0  # when the episode's first period started (monotonic)
 
     # ---- an episode ---------------------------------------------------------------------------
     def new_contract(self) -> DeployContract:
@@ -297,6 +308,8 @@ class ControlSession:
         self.prev_action = np.zeros(self.decoder.n_actions)
         self.step = self.blind_periods = 0
         self.sent_rad, self.reason, self._judged = None, None, True
+        self._missing_since = {}
+        self._begun_s = time.monotonic()
         self.clock.start()
         if self.pipelined:
             self.set_pipelined(True)
@@ -340,7 +353,9 @@ class ControlSession:
         t0 = time.perf_counter()
         state = self.arm.read_state()
         t1 = time.perf_counter()
-        percept = self.perception.perceive(state, time.monotonic())
+        now = time.monotonic()
+        percept = self.perception.perceive(state, now)
+        self.check_blind(contract, percept, now)
         seen: View | None = None
         if view:
             seen = self.view(contract, percept, state.positions_rad, self.sent_rad)
@@ -349,6 +364,34 @@ class ControlSession:
             self._judged = True
         t2 = time.perf_counter()
         return Sensed(state, percept, seen, t0, t1 - t0, t2 - t1, period_s, late_s)
+
+    def check_blind(self, contract: DeployContract, percept: Percept, now_s: float) -> None:
+        """Mid-episode, the tool or an object unseen longer than ``blind_limit_s`` (an object
+        whose track was lost counts from its loss) raises ``DeployStopError``: the driver's
+        safe stop holds, then parks. Counted from the episode's start at most: before it, the
+        arm may have parked out of the cameras' way while it looked for the objects."""
+        limit = self.config.blind_limit_s
+        if limit is None:
+            return
+        blind = {"tool": percept.tool_blind_s}
+        hidden = contract.expected_hidden()
+        for name in contract.objects:
+            if name in hidden:  # carried in the fingers: the task's estimate stands in
+                self._missing_since.pop(name, None)
+                continue
+            b = percept.blind_s(name)
+            if math.isinf(b):
+                b = now_s - self._missing_since.setdefault(name, now_s)
+            else:
+                self._missing_since.pop(name, None)
+            blind[name] = min(b, now_s - self._begun_s)
+        blind["tool"] = min(blind["tool"], now_s - self._begun_s)
+        worst = max(blind, key=lambda k: blind[k])
+        if blind[worst] > limit:
+            raise DeployStopError(
+                f"blind: {worst} unseen by the cameras for {blind[worst]:.1f} s mid-episode "
+                f"(limit {limit:.1f} s); held, then parked"
+            )
 
     def observe(self, sensed: Sensed) -> Any:
         """The policy's observation; raises ``MissingEstimateError`` while an estimate is

@@ -40,10 +40,12 @@ class ObjectEstimate:
 @dataclass(frozen=True)
 class Percept:
     """One period's estimates: the tool, and the objects the task asked for (missing: never
-    seen since the episode began)."""
+    seen since the episode began). ``tool_blind_s``: how long the cameras have not confirmed
+    the tool (the wrist plate), 0 where the tool is not camera-measured (truth, or FK only)."""
 
     tool_m: np.ndarray | None
     objects: Mapping[str, ObjectEstimate] = field(default_factory=dict)
+    tool_blind_s: float = 0.0
 
     def position(self, name: str) -> np.ndarray | None:
         est = self.objects.get(name)
@@ -148,6 +150,12 @@ class DeployContract(ABC):
         on the arm (``finetune.ArmEnv``); None: the task has no shaping that percepts can give
         (its env's shaping, if any, reads MuJoCo state only)."""
         return None
+
+    def expected_hidden(self) -> frozenset[str]:
+        """Objects the task, as judged last period, expects the cameras to lose (a cube carried
+        in the fingers): the session's blind limit does not count them, since the task's own
+        estimate (the carry rule) stands in for the cameras while they hide."""
+        return frozenset()
 
     def put_down(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> np.ndarray | None:
         """Actuator targets that set down what the arm holds before it homes or parks (the

@@ -292,6 +292,10 @@ class PickContract(DeployContract):
         tool, cube, is_holding = self._last_seen
         return percept_shaping(tool, cube, self.goal[2] - LIFT_M, is_holding)
 
+    def expected_hidden(self) -> frozenset[str]:
+        """The cube while the fingers hold or carry it: hidden in them by design."""
+        return frozenset({"cube"}) if (self._holding_now or self._carried) else frozenset()
+
     def put_down(self, reading_rad: np.ndarray, commanded_rad: np.ndarray) -> np.ndarray | None:
         """A held cube goes back on the table where the tool is: the tool down to the height it
         grasped at (the cube's rest, ``PUT_DOWN_ABOVE_M`` higher), the gripper still closed.

@@ -150,7 +150,9 @@ class _VirtualObject:
         if self.position_m is None:
             return percept
         estimate = ObjectEstimate(self.position_m.copy(), 0.0)
-        return Percept(percept.tool_m, {**percept.objects, self.name: estimate})
+        return Percept(
+            percept.tool_m, {**percept.objects, self.name: estimate}, percept.tool_blind_s
+        )
 
 
 def training_reward(env_id: str, env_kwargs: Mapping[str, Any]) -> str | None:

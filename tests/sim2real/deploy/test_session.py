@@ -190,3 +190,71 @@ def test_no_module_reaches_into_the_sessions_private_members() -> None:
             ):
                 offenders.append(f"{path.name}: .{node.value.attr}.{node.attr}")
     assert not offenders, offenders
+
+
+def test_an_object_or_tool_unseen_past_the_blind_limit_stops_the_episode(
+    spec: ArmSpec, pick_io: PolicyIO
+) -> None:
+    """The limit counts each object's blind time (a lost track from its loss) and the tool's,
+    from the episode's start at most; past it, one line naming what is unseen."""
+    from sim2real.deploy.session import DeployStopError
+    from sim2real.envs.contract import ObjectEstimate, Percept
+
+    with _session(spec, pick_io, LoopConfig(episode_steps=2, blind_limit_s=2.0)) as session:
+        session.begin_episode(0, np.random.default_rng(0))
+        contract = session.contract
+        assert contract is not None
+        t0 = session._begun_s
+        cube = ObjectEstimate(np.array([0.15, 0.0, 0.0125]), blind_s=2.5)
+        tool = np.array([0.15, 0.0, 0.1])
+        # early in the episode a long blind time is the wait before it: not held against it
+        session.check_blind(contract, Percept(tool, {"cube": cube}), t0 + 1.0)
+        with pytest.raises(DeployStopError, match=r"^blind: cube unseen by the cameras for 2\.5 "
+                           r"s mid-episode \(limit 2\.0 s\); held, then parked$"):  # fmt: skip
+            session.check_blind(contract, Percept(tool, {"cube": cube}), t0 + 3.0)
+        seen = ObjectEstimate(cube.position_m, blind_s=0.0)
+        with pytest.raises(DeployStopError, match=r"^blind: tool unseen .* for 2\.1 s"):
+            session.check_blind(contract, Percept(tool, {"cube": seen}, 2.1), t0 + 3.0)
+        # a track lost mid-episode counts from its loss
+        session.check_blind(contract, Percept(tool, {}), t0 + 3.0)
+        session.check_blind(contract, Percept(tool, {}), t0 + 4.9)
+        with pytest.raises(DeployStopError, match=r"^blind: cube unseen .* for 2\.1 s"):
+            session.check_blind(contract, Percept(tool, {}), t0 + 5.1)
+
+
+def test_a_cube_carried_in_the_fingers_is_not_held_against_the_blind_limit(
+    spec: ArmSpec, pick_io: PolicyIO
+) -> None:
+    """Hidden in fingers that hold it, the cube is where the carry rule puts it (the tool): the
+    limit counts it again once the fingers let go."""
+    from sim2real.deploy.session import DeployStopError
+    from sim2real.envs.contract import ObjectEstimate, Percept
+
+    with _session(spec, pick_io, LoopConfig(episode_steps=2, blind_limit_s=2.0)) as session:
+        session.begin_episode(0, np.random.default_rng(0))
+        contract = session.contract
+        assert contract is not None and spec.gripper is not None
+        t0 = session._begun_s
+        tool = np.array([0.15, 0.0, 0.05])
+        n = spec.n_joints
+        commanded = np.append(spec.actuator_home_rad[:n], spec.gripper.closed_rad)
+        span = spec.gripper.open_rad - spec.gripper.closed_rad
+        blocked = commanded.copy()  # the fingers stopped half open: they hold something
+        blocked[n] = spec.gripper.closed_rad + 0.5 * span
+        contract.observe_arm(blocked, commanded)
+        at_tool = ObjectEstimate(tool.copy(), blind_s=0.0)
+        contract.readings(Percept(tool, {"cube": at_tool}), 0)
+        assert contract.expected_hidden() == frozenset({"cube"})
+        hidden = ObjectEstimate(tool.copy(), blind_s=2.5)
+        session.check_blind(contract, Percept(tool, {"cube": hidden}), t0 + 3.0)  # carried
+        contract.observe_arm(commanded, commanded)  # the fingers shut: the cube is gone
+        contract.readings(Percept(tool, {"cube": hidden}), 1)
+        assert contract.expected_hidden() == frozenset()
+        with pytest.raises(DeployStopError, match=r"^blind: cube unseen"):
+            session.check_blind(contract, Percept(tool, {"cube": hidden}), t0 + 3.0)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_a_blind_limit_that_is_not_a_time_is_refused_naming_it(bad: float) -> None:
+    with pytest.raises(ConfigError, match=rf"blind_limit_s {bad} must be > 0"):
+        LoopConfig(blind_limit_s=bad)
