@@ -169,7 +169,7 @@ def main() -> None:
             eval_every_min=args.eval_every, eval_episodes=args.eval_episodes, seed=seed,
             start_timeout_s=30.0,
         )  # fmt: skip
-        summary = finetune(fo, spec)
+        summary = finetune(fo, spec).to_json()  # the figures as the records keep them
         wall_s = time.monotonic() - t0
         # what the learner used: the defaults where the options were left unset
         common.update(relabel=summary["relabel"], noise_std=summary["noise_std"])

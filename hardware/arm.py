@@ -4,7 +4,7 @@
 e-stop, torque-off on close) and calls a handful of protected hooks that a backend implements:
 ``_connect``, ``_close``, ``_read_state``, ``_send_targets``, ``_set_torque``. The serial backend
 (``SerialArm``) and the MuJoCo backend (``SimArm``) both derive from it, so neither can skip the
-safety layer, and one contract test suite (tests/hardware/arm_contract.py) checks both.
+safety layer, and one contract suite (``hardware.testing``) checks every backend.
 """
 
 from __future__ import annotations

@@ -36,6 +36,18 @@ import numpy as np
 
 from hardware.atomic import atomic_write_bytes, atomic_write_text
 from hardware.spec import ArmSpec, load_spec
+from sim2real.adapt.figures import (
+    DeployFigures,
+    EvaluateFigures,
+    ExportFigures,
+    FinetuneFigures,
+    FitFigures,
+    GivenLogsFigures,
+    RecordFigures,
+    StageFigures,
+    StageResult,
+    SysidFigures,
+)
 from sim2real.deploy.connection import ArmConnection
 from sim2real.deploy.replayed import check_source
 from sim2real.errors import ConfigError, RunDirError, Sim2RealError
@@ -113,20 +125,21 @@ def _now() -> str:
     return dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def wilson(successes: int, n: int) -> list[float]:
+def wilson(successes: int, n: int) -> tuple[float, float]:
     from sim2real.evaluate.stats import wilson_interval
 
     lo, hi = wilson_interval(successes, n)
-    return [round(lo, 4), round(hi, 4)]
+    return round(lo, 4), round(hi, 4)
 
 
 class Adapter:
-    """Runs the stages not yet done; ``report`` receives each stage's figures as it ends."""
+    """Runs the stages not yet done; ``report`` receives each stage's result as it ends (or,
+    for a stage an earlier run finished, as it is read back)."""
 
     def __init__(
         self,
         opts: AdaptOptions,
-        report: Callable[[str, dict[str, Any]], None],
+        report: Callable[[StageResult], None],
         on_start: Callable[[str], None] = lambda stage: None,
     ) -> None:
         self.opts = opts
@@ -134,7 +147,8 @@ class Adapter:
         self.out = opts.out
         self.report = report
         self.spec = load_spec(opts.spec)
-        self.status = self._load_status()
+        self.status = self._load_status()  # the record, as status.json keeps it
+        self.results = self._finished()  # the same, typed
         self._check_inputs()
         self._preload()
 
@@ -203,10 +217,24 @@ class Adapter:
             raise RunDirError(f"{self.status_path}: unknown stages {unknown}")
         return dict(status)
 
-    def _mark_done(self, stage: str, figures: dict[str, Any]) -> None:
+    def _finished(self) -> dict[str, StageResult]:
+        """The stages an earlier run finished, read back from ``status.json``."""
+        results = {}
+        for stage in self.status["stages_done"]:
+            try:
+                results[stage] = StageResult.from_json(stage, self.status["figures"][stage])
+            except (KeyError, TypeError, ValueError) as exc:
+                raise RunDirError(
+                    f"{self.status_path}: unreadable figures of stage {stage} ({exc!r})"
+                ) from None
+        return results
+
+    def _mark_done(self, result: StageResult) -> None:
+        stage = result.stage
+        self.results[stage] = result
         done = [s for s in self.status["stages_done"] if s != stage] + [stage]
         self.status["stages_done"] = [s for s in STAGES if s in done]
-        self.status["figures"][stage] = figures
+        self.status["figures"][stage] = result.to_json()
         self.status["updated_utc"] = _now()
         atomic_write_text(self.status_path, json.dumps(self.status, indent=1) + "\n")
 
@@ -214,22 +242,22 @@ class Adapter:
         return stage in self.status["stages_done"]
 
     # ---- running ----------------------------------------------------------------------------
-    def run(self) -> dict[str, dict[str, Any]]:
-        """Every stage not done, in order; the figures of all stages."""
+    def run(self) -> dict[str, StageResult]:
+        """Every stage not done, in order; the results of all stages."""
         self.out.mkdir(parents=True, exist_ok=True)
         if not self.status_path.is_file():
             atomic_write_text(self.status_path, json.dumps(self.status, indent=1) + "\n")
         for stage in STAGES:
             if self.done(stage):
-                self.report(stage, {**self.status["figures"][stage], "resumed": True})
+                self.report(self.results[stage])
                 continue
             self.on_start(stage)
             t0 = time.perf_counter()
-            figures = getattr(self, f"_stage_{stage}")()
-            figures["stage_wall_s"] = round(time.perf_counter() - t0, 2)
-            self._mark_done(stage, figures)
-            self.report(stage, figures)
-        return dict(self.status["figures"])
+            figures: StageFigures = getattr(self, f"_stage_{stage}")()
+            result = StageResult(stage, figures, round(time.perf_counter() - t0, 2))
+            self._mark_done(result)
+            self.report(result)
+        return {stage: self.results[stage] for stage in STAGES if stage in self.results}
 
     # ---- shared pieces ----------------------------------------------------------------------
     def _control_hz(self) -> float:
@@ -237,7 +265,7 @@ class Adapter:
 
         return float(resolve_source(self.opts.policy).config.get("control_hz", 20.0))
 
-    def _deploy(self, policy: str, spec: ArmSpec, calibration: Path | None) -> dict[str, Any]:
+    def _deploy(self, policy: str, spec: ArmSpec, calibration: Path | None) -> DeployFigures:
         from sim2real.deploy.loop import LoopConfig
         from sim2real.deploy.replayed import placements
         from sim2real.deploy.runner import deploy
@@ -258,25 +286,26 @@ class Adapter:
                 raise DeployInterruptedError(f"deploy of {policy!r} interrupted; the arm is parked")
             raise ConfigError(f"deploy of {policy!r} stopped early: {result.stopped_early}")
         n, k = len(result.episodes), result.successes
-        return {
-            "episodes": n,
-            "successes": k,
-            "success_rate": round(k / max(n, 1), 4),
-            "success_wilson95": wilson(k, n),
-            "mean_final_distance_m": result.summary().mean_final_distance_m,
-            "watchdog_trips": result.watchdog_trips,
-        }
+        return DeployFigures(
+            episodes=n,
+            successes=k,
+            success_rate=round(k / max(n, 1), 4),
+            success_wilson95=wilson(k, n),
+            mean_final_distance_m=result.summary().mean_final_distance_m,
+            watchdog_trips=result.watchdog_trips,
+        )
 
-    def _write_json(self, name: str, body: dict[str, Any]) -> Path:
+    def _write_json(self, name: str, figures: StageFigures) -> Path:
+        body = figures.to_json()  # JSON only where it is written
         return atomic_write_text(self.out / name, json.dumps(body, indent=1) + "\n")
 
     # ---- stages -----------------------------------------------------------------------------
-    def _stage_zero_shot(self) -> dict[str, Any]:
+    def _stage_zero_shot(self) -> DeployFigures:
         figures = self._deploy(self.opts.policy, self.spec, self.opts.arm.joint_calibration)
         self._write_json("zero_shot.json", figures)
         return figures
 
-    def _stage_record(self) -> dict[str, Any]:
+    def _stage_record(self) -> RecordFigures | GivenLogsFigures:
         rec = self.out / "record"
         if self.opts.logs:
             return self._take_logs(rec)
@@ -284,15 +313,15 @@ class Adapter:
 
         servo, kin = self._record_on_arm()
         seen = np.all(np.isfinite(kin["ee_marker_m"]), axis=1)
-        save_log(rec / "servo.npz", servo)
-        save_log(rec / "kinematics.npz", kin)
-        return {
-            "servo_periods": len(servo["t_s"]),
-            "kinematic_periods": len(kin["t_s"]),
-            "kinematic_s": self.opts.kinematic_s,
-            "marker_seen_rate": round(float(seen.mean()), 3),
-            "logs": ["record/servo.npz", "record/kinematics.npz"],
-        }
+        save_log(self.out / RecordFigures.SERVO_LOG, servo)
+        save_log(self.out / RecordFigures.KINEMATIC_LOG, kin)
+        return RecordFigures(
+            servo_periods=len(servo["t_s"]),
+            kinematic_periods=len(kin["t_s"]),
+            kinematic_s=self.opts.kinematic_s,
+            marker_seen_rate=round(float(seen.mean()), 3),
+            logs=(RecordFigures.SERVO_LOG, RecordFigures.KINEMATIC_LOG),
+        )
 
     def _classify_logs(self) -> tuple[list[Path], list[Path]]:
         """Given logs: a log with ``t_cmd_s`` is a servo log, one with wrist-marker keys a
@@ -330,7 +359,7 @@ class Adapter:
         load_marker_logs(kin, self.spec)  # too few marker observations fail here, in one line
         return servo, kin
 
-    def _take_logs(self, rec: Path) -> dict[str, Any]:
+    def _take_logs(self, rec: Path) -> GivenLogsFigures:
         """The given logs, copied into ``record/`` so the folder holds what was fitted."""
         servo, kin = self._classify_logs()
         names: dict[str, list[str]] = {"servo": [], "kinematics": []}
@@ -339,7 +368,11 @@ class Adapter:
                 name = f"{kind}-{i}.npz"
                 atomic_write_bytes(rec / name, Path(p).read_bytes())
                 names[kind].append(f"record/{name}")
-        return {"logs": names, "given": [str(p) for p in self.opts.logs]}
+        return GivenLogsFigures(
+            servo_logs=tuple(names["servo"]),
+            kinematic_logs=tuple(names["kinematics"]),
+            given=tuple(str(p) for p in self.opts.logs),
+        )
 
     def _record_on_arm(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
         from sim2real.adapt.excite import record_kinematic_excitation as kinematic
@@ -392,15 +425,12 @@ class Adapter:
         return arm, view
 
     def _record_paths(self) -> tuple[list[Path], list[Path]]:
-        logs = self.status["figures"]["record"]["logs"]
-        if isinstance(logs, dict):
-            return (
-                [self.out / n for n in logs["servo"]],
-                [self.out / n for n in logs["kinematics"]],
-            )
-        return [self.out / "record/servo.npz"], [self.out / "record/kinematics.npz"]
+        record = self.results["record"].figures
+        assert isinstance(record, RecordFigures | GivenLogsFigures)
+        servo, kinematic = record.log_names()
+        return [self.out / n for n in servo], [self.out / n for n in kinematic]
 
-    def _stage_sysid(self) -> dict[str, Any]:
+    def _stage_sysid(self) -> SysidFigures:
         from sim2real.sysid.fit import fit_servo, load_log
         from sim2real.sysid.kinematics import fit_kinematics, load_marker_logs
 
@@ -421,12 +451,12 @@ class Adapter:
                 "n_rejected": kin.n_rejected,
             },
         }
-        self._write_json("sysid.json", body)
-        return {
-            **{k: round(v, 5) for k, v in servo_figures.items()},
-            "servo_rms_rad": round(float(rms), 5),
-            **kin.as_dict(),
-        }
+        atomic_write_text(self.out / "sysid.json", json.dumps(body, indent=1) + "\n")
+        return SysidFigures(
+            servo={k: round(v, 5) for k, v in servo_figures.items()},
+            servo_rms_rad=round(float(rms), 5),
+            kinematics=kin.as_dict(),
+        )
 
     def _fits(self) -> tuple[Any, Any]:
         from sim2real.sysid.kinematics import KinematicFit
@@ -448,7 +478,7 @@ class Adapter:
             raise RunDirError(f"{self.out / 'sysid.json'}: unreadable ({exc})") from None
         return servo, kin
 
-    def _stage_fit(self) -> dict[str, Any]:
+    def _stage_fit(self) -> FitFigures:
         import yaml
 
         from hardware.joint_calibration import ArmCalibration
@@ -486,25 +516,26 @@ class Adapter:
             header="The arm as `sim2real adapt` estimated it (a plant file: --plant takes it)",
         )
         L0, L1 = self.spec.links, spec.links
-        return {
-            "spec": "fitted.yaml",
-            "dr_preset": "fitted.dr.yaml",
-            "joint_calibration": "joint_calibration.yaml",
-            "fingerprint": spec.fingerprint(),
-            "link_change_mm": [
+        latency_lo, latency_hi = ranges["actuation"]["latency_steps"]
+        return FitFigures(
+            spec="fitted.yaml",
+            dr_preset="fitted.dr.yaml",
+            joint_calibration="joint_calibration.yaml",
+            fingerprint=spec.fingerprint(),
+            link_change_mm=tuple(
                 round((getattr(L1, f) - getattr(L0, f)) * 1000, 2)
                 for f in ("base_height_m", "upper_arm_m", "forearm_m")
-            ],
-            "joint_offset_rad": [round(float(v), 5) for v in kin.joint_offset_rad],
-            "dr_link_half_width_m": ranges["kinematics"]["link_length_delta_m"][1],
-            "dr_offset_half_width_rad": ranges["kinematics"]["joint_offset_rad"][1],
-            "dr_latency_steps": ranges["actuation"]["latency_steps"],
-        }
+            ),
+            joint_offset_rad=tuple(round(float(v), 5) for v in kin.joint_offset_rad),
+            dr_link_half_width_m=ranges["kinematics"]["link_length_delta_m"][1],
+            dr_offset_half_width_rad=ranges["kinematics"]["joint_offset_rad"][1],
+            dr_latency_steps=(latency_lo, latency_hi),
+        )
 
     def _fitted(self) -> ArmSpec:
         return load_spec(self.out / "fitted.yaml")
 
-    def _stage_finetune(self) -> dict[str, Any]:
+    def _stage_finetune(self) -> FinetuneFigures:
         from sim2real.adapt.checkpoint import prepare_finetune_dir, resolve_source
         from sim2real.randomization import load_preset
         from sim2real.train.rundir import RunDir
@@ -539,16 +570,16 @@ class Adapter:
             res = resume(run_dir, max_wall_s=left_s, progress=False)
             result_steps, wall, rate = res.steps_done, res.wall_s, res.steps_per_s
             success = res.train_success_rate
-        return {
-            "run_dir": "finetune",
-            "steps": result_steps - start_steps,
-            "wall_s": round(wall, 1),
-            "budget_s": budget_s,
-            "steps_per_s": round(rate, 1) if math.isfinite(rate) else None,
-            "train_success_rate": None if success is None else round(success, 3),
-        }
+        return FinetuneFigures(
+            run_dir="finetune",
+            steps=result_steps - start_steps,
+            wall_s=round(wall, 1),
+            budget_s=budget_s,
+            steps_per_s=round(rate, 1) if math.isfinite(rate) else None,
+            train_success_rate=None if success is None else round(success, 3),
+        )
 
-    def _stage_export(self) -> dict[str, Any]:
+    def _stage_export(self) -> ExportFigures:
         from sim2real.export.exporter import export_policy
         from sim2real.export.policy import load_policy
 
@@ -558,20 +589,25 @@ class Adapter:
         fitted_spec = self._fitted()
         meta.check_spec(fitted_spec)
         fitted = fitted_spec.fingerprint()
-        return {"policy": "policy.onnx", "bytes": out.stat().st_size, "fingerprint": fitted}
+        return ExportFigures("policy.onnx", out.stat().st_size, fitted)
 
-    def _stage_evaluate(self) -> dict[str, Any]:
-        figures = self._deploy(
+    def _stage_evaluate(self) -> EvaluateFigures:
+        after = self._deploy(
             str(self.out / "policy.onnx"), self._fitted(), self.out / "joint_calibration.yaml"
         )
-        zero = self.status["figures"].get("zero_shot", {})
-        figures["zero_shot_success_rate"] = zero.get("success_rate")
-        figures["zero_shot_wilson95"] = zero.get("success_wilson95")
+        zero = self.results.get("zero_shot")
+        before = None if zero is None else zero.figures
+        assert before is None or isinstance(before, DeployFigures)
+        figures = EvaluateFigures(
+            **vars(after),
+            zero_shot_success_rate=None if before is None else before.success_rate,
+            zero_shot_wilson95=None if before is None else before.success_wilson95,
+        )
         self._write_json("evaluate.json", figures)
         return figures
 
 
-def summary_table(figures: dict[str, dict[str, Any]]) -> str:
+def summary_table(results: dict[str, StageResult]) -> str:
     """One line per stage: its headline figures."""
     keys = {
         "zero_shot": ("success_rate", "success_wilson95", "episodes"),
@@ -584,10 +620,11 @@ def summary_table(figures: dict[str, dict[str, Any]]) -> str:
     }
     lines = [f"{'stage':10s} {'wall s':>8s}  figures"]
     for stage in STAGES:
-        f = figures.get(stage)
-        if f is None:
+        result = results.get(stage)
+        if result is None:
             lines.append(f"{stage:10s} {'-':>8s}  not done")
             continue
+        f = result.to_json()
         shown = ", ".join(f"{k}={f[k]}" for k in keys[stage] if k in f)
         lines.append(f"{stage:10s} {f.get('stage_wall_s', 0.0):8.1f}  {shown}")
     return "\n".join(lines)

@@ -11,7 +11,6 @@ import datetime as dt
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 from sim2real.deploy.connection import add_arm_options, arm_connection
 from sim2real.deploy.replayed import PLACEMENT_SOURCES
@@ -67,6 +66,7 @@ def _default_out(policy: str) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sim2real.adapt.figures import StageResult
     from sim2real.adapt.pipeline import Adapter, AdaptOptions, DeployInterruptedError, summary_table
 
     if args.resume and args.out is None:
@@ -89,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
         placements=args.placements,
     )
 
-    def report(stage: str, figures: dict[str, Any]) -> None:
+    def report(result: StageResult) -> None:
+        stage, figures = result.stage, result.to_json()  # JSON only here, at the edge
         if args.json:
             print(json.dumps({"stage": stage, **figures}), flush=True)
         else:
@@ -101,12 +102,12 @@ def run(args: argparse.Namespace) -> int:
     adapter = Adapter(opts, report, on_start)
     print(f"sim2real adapt: {opts.out}", file=sys.stderr, flush=True)
     try:
-        figures = adapter.run()
+        results = adapter.run()
     except (
         DeployInterruptedError
     ) as exc:  # the deploy loop stopped cleanly; main reports the signal
         print(f"sim2real adapt: {exc}", file=sys.stderr)
         return 1
-    table = summary_table(figures)
+    table = summary_table(results)
     print(table, file=sys.stderr if args.json else sys.stdout, flush=True)
     return 0

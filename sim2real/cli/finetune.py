@@ -116,13 +116,14 @@ def run(args: argparse.Namespace) -> int:
             )
 
     summary = finetune(fo, spec, report)
+    body = summary.to_json()  # JSON only here, at the edge
     if args.json:
-        print(json.dumps(summary, default=_plain), flush=True)
+        print(json.dumps(body, default=_plain), flush=True)
     else:
-        for key, value in summary.items():
+        for key, value in body.items():
             if key != "event":
                 print(f"{key:22s} {value}")
-    return 0 if summary["stopped"] is None else 1
+    return 0 if summary.stopped is None else 1
 
 
 def _plain(value: Any) -> Any:

@@ -310,6 +310,8 @@ def _ops(emulator: Any, physics: Any) -> dict[str, Callable[..., Any]]:
         "brownout": lambda: emulator.brownout(),
         "jam": lambda *names: emulator.jam(*names),
         "true_positions_rad": lambda: np.asarray(emulator.true_positions_rad()),
+        "torque_enabled": lambda: np.asarray(emulator.torque_enabled()),
+        "sync": lambda timeout_s: emulator.sync(timeout_s),  # the host's bytes all taken in
         "stats": lambda: emulator.stats(),
     }
 

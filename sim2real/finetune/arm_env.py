@@ -64,6 +64,7 @@ from sim2real.envs.contract import (
 )
 from sim2real.errors import ConfigError, UnknownNameError
 from sim2real.finetune.keys import HumanKeys
+from sim2real.finetune.results import ArmEndState
 
 log = logging.getLogger(__name__)
 
@@ -259,7 +260,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.episodes = 0
         self.blind_periods = 0
         self.estops: list[str] = []  # e-stops (watchdog, faults) that a reset recovered from
-        self.end_state: dict[str, Any] = {}  # where close() left the arm (``_end_state``)
+        self.end_state: ArmEndState | None = None  # where close() left the arm
         self._idle_stop = threading.Event()
         self._idle: threading.Thread | None = None
 
@@ -503,23 +504,24 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._closed:
             raise ConfigError("ArmEnv is closed: make a new one")
 
-    def _end_state(self) -> dict[str, Any]:
+    def _end_state(self) -> ArmEndState:
         """Where the arm ended: the host's torque flag, and the joints read back before the port
         closes with their distance from the park pose (a parked arm sags by its droop; after an
         e-stop the arm held where it was, then went torque off)."""
-        out: dict[str, Any] = {"torque_on": bool(self.arm.is_enabled)}
+        torque_on = bool(self.arm.is_enabled)
         if not self.arm.is_connected:
-            out["read_error"] = "not connected"
-            return out
+            return ArmEndState(torque_on, read_error="not connected")
         spec = self.arm.spec
         try:
             q = np.asarray(self.arm.read_state().positions_rad[: spec.n_joints], float)
         except Exception as exc:  # the port is gone: torque off was the firmware's to do
-            out["read_error"] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            return out
-        out["joints_rad"] = [round(float(v), 4) for v in q]
-        out["park_error_rad"] = round(float(np.max(np.abs(q - spec.park_rad))), 4)
-        return out
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            return ArmEndState(torque_on, read_error=why)
+        return ArmEndState(
+            torque_on,
+            joints_rad=tuple(round(float(v), 4) for v in q),
+            park_error_rad=round(float(np.max(np.abs(q - spec.park_rad))), 4),
+        )
 
     @property
     def safety_stats(self) -> dict[str, int]:

@@ -35,6 +35,7 @@ from sim2real.errors import ConfigError
 from sim2real.finetune.checkpoint import ALGOS, FinetuneDir, FinetuneSource, resolve
 from sim2real.finetune.defaults import LEARNER_DEFAULTS
 from sim2real.finetune.relabel import default_ratio
+from sim2real.finetune.results import EvalFigures, FinetuneSummary, LoopFigures
 
 log = logging.getLogger(__name__)
 
@@ -229,7 +230,7 @@ class _Run:
         )
 
     # ---- the loop -----------------------------------------------------------------------------
-    def run(self) -> dict[str, Any]:
+    def run(self) -> FinetuneSummary:
         from sim2real.finetune.actor import NumpyActor, ObsNormalizer
         from sim2real.finetune.learner import LearnerHandle
 
@@ -265,7 +266,8 @@ class _Run:
                 )  # fmt: skip
                 self.watchdog_trips += int("watchdog" in str(exc))
                 env.close()  # the arm first: parked (or held, torque off, after an e-stop)
-                self.state["stops"][-1]["arm_end"] = env.end_state
+                end = env.end_state
+                self.state["stops"][-1]["arm_end"] = {} if end is None else end.to_json()
                 self._interventions(human)
                 if not isinstance(exc, _learner_errors()):
                     try:
@@ -500,7 +502,7 @@ class _Run:
                 d["episode"] = self.state["episodes"]
                 self.state["interventions"].append(d)
 
-    def summary(self, env: Any, learner: Any) -> dict[str, Any]:
+    def summary(self, env: Any, learner: Any) -> FinetuneSummary:
         from sim2real.evaluate.stats import wilson_interval
 
         periods = np.asarray(env.periods_s)
@@ -510,43 +512,43 @@ class _Run:
         for block in self.state["evals"]:
             lo, hi = wilson_interval(block["successes"], block["n"])
             rate = block["successes"] / block["n"] if block["n"] else math.nan
-            evals.append({**block, "success": rate, "wilson95": [round(lo, 4), round(hi, 4)]})
-        return {
-            "event": "summary",
-            "out": str(self.fo.out),
-            "algo": self.algo,
-            "noise_std": self.noise_std,
-            "relabel": self.relabel,
-            "source": self.fo.policy,
-            "backend": self.identity["backend"],
-            "plant": self.identity["plant"],
-            "episodes": self.state["episodes"],
-            "episodes_this_run": self.state["episodes"] - self.start_episodes,
-            "env_steps": self.state["env_steps"],
-            "arm_s": round(float(self.state["arm_s"]), 3),
-            "success_last_n": self._recent_success(),
-            "success_window": self.fo.success_window,
-            "evals": evals,
-            "learner_updates": self.state["learner_updates"],
-            "actor_weight_updates": self.weight_updates,
-            "loop": {
-                "rate_hz": float(1.0 / periods.mean()) if len(periods) else math.nan,
-                "period_jitter_ms_p50": float(np.percentile(jitter, 50))
-                if len(jitter)
-                else math.nan,
-                "period_jitter_ms_p99": float(np.percentile(jitter, 99))
-                if len(jitter)
-                else math.nan,
-                "late_periods": env.overruns,
-                "watchdog_trips": trips,
-                "recovered_estops": list(env.estops),
-            },
-            "safety": env.safety_stats,
-            "arm_end": env.end_state,
-            "interventions": len(self.state["interventions"]),
-            "checkpoint": self.state["checkpoint"],
-            "stopped": self.stop_reason,
-        }
+            ends = block["end_episode"]
+            wilson = (round(lo, 4), round(hi, 4))
+            evals.append(
+                EvalFigures(block["arm_min"], block["successes"], block["n"], ends, rate, wilson)
+            )
+        loop = LoopFigures(
+            rate_hz=float(1.0 / periods.mean()) if len(periods) else math.nan,
+            period_jitter_ms_p50=float(np.percentile(jitter, 50)) if len(jitter) else math.nan,
+            period_jitter_ms_p99=float(np.percentile(jitter, 99)) if len(jitter) else math.nan,
+            late_periods=env.overruns,
+            watchdog_trips=trips,
+            recovered_estops=tuple(env.estops),
+        )
+        return FinetuneSummary(
+            out=str(self.fo.out),
+            algo=self.algo,
+            noise_std=self.noise_std,
+            relabel=self.relabel,
+            source=self.fo.policy,
+            backend=self.fo.deploy.backend,
+            plant=self.identity["plant"],
+            episodes=self.state["episodes"],
+            episodes_this_run=self.state["episodes"] - self.start_episodes,
+            env_steps=self.state["env_steps"],
+            arm_s=round(float(self.state["arm_s"]), 3),
+            success_last_n=self._recent_success(),
+            success_window=self.fo.success_window,
+            evals=tuple(evals),
+            learner_updates=self.state["learner_updates"],
+            actor_weight_updates=self.weight_updates,
+            loop=loop,
+            safety=env.safety_stats,
+            arm_end=env.end_state,
+            interventions=len(self.state["interventions"]),
+            checkpoint=self.state["checkpoint"],
+            stopped=self.stop_reason,
+        )
 
 
 def _learner_errors() -> tuple[type[BaseException], ...]:
@@ -565,7 +567,7 @@ def _why(exc: BaseException) -> str:
 
 def finetune(
     fo: FinetuneOptions, spec: ArmSpec, report: Report = lambda event: None
-) -> dict[str, Any]:
+) -> FinetuneSummary:
     """Fine-tune ``fo.policy`` on ``fo.deploy``'s arm; the summary (also after an e-stop, a
-    start or blind timeout: ``summary['stopped']`` says why)."""
+    start or blind timeout: ``summary.stopped`` says why; ``to_json()`` at the CLI)."""
     return _Run(fo, spec, report).run()

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 HERE = Path(__file__).resolve().parent
-if str(HERE) not in sys.path:  # arm_contract.py and helpers import as plain modules
+if str(HERE) not in sys.path:  # emulated.py and other helpers import as plain modules
     sys.path.insert(0, str(HERE))
 
 from hardware.emulator import Emulator  # noqa: E402

@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+from timescale import scaled
 
 from hardware.emulator import Emulator
 from hardware.joint_calibration import ArmCalibration
+
+# how long the probe waits for the emulator to take in the host's last bytes (a loaded machine
+# may keep its thread off the CPU a while): a bound, not a wait
+SYNC_TIMEOUT_S = scaled(10.0)
 
 
 class EmulatorProbe:
@@ -20,12 +25,12 @@ class EmulatorProbe:
         return self.emulator.true_positions_rad()
 
     def torque_enabled(self) -> bool:
-        self.emulator.sync()
+        self.emulator.sync(SYNC_TIMEOUT_S)
         return bool(np.all(self.emulator.torque_enabled()))
 
     def received_units(self) -> list[np.ndarray]:
         """Target vectors in device units, rebuilt from per-servo log entries where needed."""
-        self.emulator.sync()
+        self.emulator.sync(SYNC_TIMEOUT_S)
         ids = list(self.emulator.spec.actuator_ids)
         out: list[np.ndarray] = []
         current: dict[int, int] = {}

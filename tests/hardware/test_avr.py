@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import serial
-from arm_contract import ArmContract, ArmProbe
 from emulated import EmulatorProbe
+from timescale import scaled
 
 from hardware.emulator import FIRMWARES, AvrEmulator, Emulator, FirmwareCore
 from hardware.emulator.firmware import AppliedCommand
@@ -31,6 +31,7 @@ from hardware.firmware.limits import firmware_limits
 from hardware.protocols import s2r
 from hardware.serial_arm import SerialArm
 from hardware.spec import PWM_SPEC_PATH, ArmSpec, load_spec
+from hardware.testing import CHECKS, SETTLE_TIMEOUT_S, ArmProbe
 
 _MISSING = avr.missing_toolchain()
 # CI sets SIM2REAL_REQUIRE_AVR=1: there a missing toolchain fails these tests instead
@@ -73,10 +74,10 @@ def test_sketch_fits_the_chip_with_headroom(avr_build: avr.AvrBuild) -> None:
 
 @pytest.fixture(scope="session")
 def avr_spec(quick_spec: ArmSpec) -> ArmSpec:
-    """quick_spec with a 2 s watchdog (host and chip): these tests wait for the chip's pulses to
-    settle (``sync``), which on a loaded machine may take longer than 0.25 s between commands.
-    The watchdog itself is covered by the byte-stream replays."""
-    return replace(quick_spec, safety=replace(quick_spec.safety, watchdog_timeout_s=2.0))
+    """quick_spec with a 2 s watchdog (host and chip, scaled): these tests wait for the chip's
+    pulses to settle (``sync``), which on a loaded machine may take longer than 0.25 s between
+    commands. The watchdog itself is covered by the byte-stream replays."""
+    return replace(quick_spec, safety=replace(quick_spec.safety, watchdog_timeout_s=scaled(2.0)))
 
 
 @pytest.fixture(scope="session")
@@ -85,8 +86,9 @@ def avr_pwm_spec(avr_spec: ArmSpec) -> ArmSpec:
     return avr_spec.with_feedback("commanded")
 
 
-class TestAvrContract(ArmContract):
-    """The same contract as the Python emulator's, against the .elf in simavr."""
+class TestAvrContract:
+    """The same contract (``hardware.testing``) as the Python emulator's, against the .elf in
+    simavr."""
 
     @pytest.fixture
     def emulator(self, avr_spec: ArmSpec, make_avr: Callable[..., AvrEmulator]) -> AvrEmulator:
@@ -94,13 +96,17 @@ class TestAvrContract(ArmContract):
 
     @pytest.fixture
     def arm(self, avr_spec: ArmSpec, emulator: AvrEmulator) -> Iterator[SerialArm]:
-        arm = SerialArm(avr_spec, emulator.port, protocol="s2r", timeout_s=0.2)
+        arm = SerialArm(avr_spec, emulator.port, protocol="s2r", timeout_s=scaled(0.5))
         yield arm
         arm.close()
 
     @pytest.fixture
     def probe(self, arm: SerialArm, emulator: AvrEmulator) -> ArmProbe:
         return EmulatorProbe(emulator, arm.calibration)  # type: ignore[arg-type]
+
+    @pytest.mark.parametrize("check", CHECKS)
+    def test_contract(self, check: str, arm: SerialArm, probe: ArmProbe) -> None:
+        CHECKS[check](arm, probe, settle_timeout_s=scaled(SETTLE_TIMEOUT_S))
 
 
 class TestAvrPwmContract(TestAvrContract):
@@ -112,7 +118,7 @@ class TestAvrPwmContract(TestAvrContract):
 
     @pytest.fixture
     def arm(self, avr_pwm_spec: ArmSpec, emulator: AvrEmulator) -> Iterator[SerialArm]:
-        arm = SerialArm(avr_pwm_spec, emulator.port, protocol="s2r", timeout_s=0.2)
+        arm = SerialArm(avr_pwm_spec, emulator.port, protocol="s2r", timeout_s=scaled(0.5))
         yield arm
         arm.close()
 

@@ -1,18 +1,15 @@
-"""SimArm passes the same Arm contract suite as SerialArm on every emulated protocol."""
+"""SimArm passes the same Arm contract (``hardware.testing``) as SerialArm on every emulated
+protocol."""
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parents[2] / "hardware"))
-from arm_contract import ArmContract, ArmProbe
-
 from hardware.spec import load_spec
+from hardware.testing import CHECKS, ArmProbe
 from sim2real.deploy.sim_arm import SimArm
 
 
@@ -32,7 +29,7 @@ class SimProbe:
         return list(self.arm.received)
 
 
-class TestSimArmContract(ArmContract):
+class TestSimArmContract:
     @pytest.fixture
     def arm(self) -> Iterator[SimArm]:
         arm = SimArm(load_spec(), clock="lockstep")
@@ -42,6 +39,10 @@ class TestSimArmContract(ArmContract):
     @pytest.fixture
     def probe(self, arm: SimArm) -> ArmProbe:
         return SimProbe(arm)
+
+    @pytest.mark.parametrize("check", CHECKS)
+    def test_contract(self, check: str, arm: SimArm, probe: ArmProbe) -> None:
+        CHECKS[check](arm, probe)
 
 
 def test_torque_off_lets_the_arm_sag_under_gravity() -> None:

@@ -11,18 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parents[2] / "hardware"))
 sys.path.insert(0, str(Path(__file__).parent))
-from arm_contract import ArmContract, ArmProbe
 from test_sim_arm_contract import SimProbe
 
 from hardware.spec import load_spec
+from hardware.testing import CHECKS, ArmProbe
 from sim2real.deploy.sim_arm import SimArm
 
 PWM = load_spec(Path(__file__).parents[3] / "hardware" / "specs" / "arm3_mg996r_pwm.yaml")
 
 
-class TestPwmSimArmContract(ArmContract):
+class TestPwmSimArmContract:
     @pytest.fixture
     def arm(self) -> Iterator[SimArm]:
         arm = SimArm(PWM, clock="lockstep")
@@ -32,6 +31,10 @@ class TestPwmSimArmContract(ArmContract):
     @pytest.fixture
     def probe(self, arm: SimArm) -> ArmProbe:
         return SimProbe(arm)
+
+    @pytest.mark.parametrize("check", CHECKS)
+    def test_contract(self, check: str, arm: SimArm, probe: ArmProbe) -> None:
+        CHECKS[check](arm, probe)
 
 
 def test_a_pwm_sim_arm_reads_its_slewed_command_not_a_jammed_joint() -> None:

@@ -68,9 +68,9 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
     out, dataset = tmp_path / "ft", tmp_path / "ds"
     events: list[dict[str, Any]] = []
     first = finetune(_options(out, record_dataset=dataset), spec, events.append)
-    assert first["stopped"] is None and first["episodes"] == 1
-    steps = first["env_steps"]
-    assert steps >= 1 and first["learner_updates"] > 0
+    assert first.stopped is None and first.episodes == 1
+    steps = first.env_steps
+    assert steps >= 1 and first.learner_updates > 0
     assert not _alive(next(e["learner_pid"] for e in events if e["event"] == "learner_ready"))
 
     # the actor the loop ran and the model the run dir carries both moved off the source
@@ -78,7 +78,7 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
 
     source = shipped()["reach-ddpg"].checkpoint
     assert source is not None
-    assert first["actor_weight_updates"] >= 1
+    assert first.actor_weight_updates >= 1
     assert not np.allclose(_actor(out / "model.zip"), _actor(source[0]))
 
     # the guard and the joint limits held: every logged command is inside the spec's limits
@@ -90,11 +90,11 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
     assert len(sent) == steps
     assert np.all(sent[:, :n] >= lower - 1e-9) and np.all(sent[:, :n] <= upper + 1e-9)
     assert np.all(np.isfinite(sent))
-    assert first["safety"]["nonfinite"] == 0
-    assert first["safety"]["table_contacts"] == 0  # the mock world's MuJoCo saw no arm on the table
+    assert first.safety["nonfinite"] == 0
+    assert first.safety["table_contacts"] == 0  # the mock world's MuJoCo saw no arm on the table
     # parked, torque off, read back before the port closed
-    assert first["arm_end"]["torque_on"] is False and first["arm_end"]["park_error_rad"] < 0.05
-    assert first["safety"]["commands"] >= steps
+    assert first.arm_end.torque_on is False and first.arm_end.park_error_rad < 0.05
+    assert first.safety["commands"] >= steps
 
     # the learner trained on what the env saw: each transition is this period's observation
     # (normalised as the source run did), the action the policy chose, the reward with the
@@ -120,12 +120,12 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
 
     # resume continues the counters (steps and episodes go on, updates too), not restart
     second = finetune(_options(out, resume=True), spec)
-    assert second["episodes"] == 2 and second["episodes_this_run"] == 1
-    assert second["env_steps"] > steps
-    assert second["learner_updates"] > first["learner_updates"]
+    assert second.episodes == 2 and second.episodes_this_run == 1
+    assert second.env_steps > steps
+    assert second.learner_updates > first.learner_updates
     assert (out / "episodes" / "episode_00001.npz").is_file()
     state = json.loads((out / "finetune.json").read_text())
-    assert state["segments"] == 2 and state["env_steps"] == second["env_steps"]
+    assert state["segments"] == 2 and state["env_steps"] == second.env_steps
     assert [e["episode"] for e in state["episode_log"]] == [0, 1]
 
     # the first run's episode as a LeRobot dataset, read back
@@ -318,10 +318,10 @@ def test_pick_finetunes_from_the_shipped_ddpg_paid_its_shaping_from_percepts(
     sim = DeployOptions(backend="sim", sim_clock="lockstep")
     opts = _options(out, policy="pick-ddpg", deploy=sim, max_episodes=2)
     summary = finetune(opts, spec)
-    assert summary["stopped"] is None and summary["episodes"] == 2
-    assert summary["relabel"] == 0.0  # pick's goal is not relabelled
+    assert summary.stopped is None and summary.episodes == 2
+    assert summary.relabel == 0.0  # pick's goal is not relabelled
     source = shipped()["pick-ddpg"].checkpoint
-    assert source is not None and summary["learner_updates"] > 0
+    assert source is not None and summary.learner_updates > 0
     assert not np.allclose(_actor(out / "model.zip"), _actor(source[0]))
     logs = [np.load(out / "episodes" / f"episode_{k:05d}.npz") for k in range(2)]
     state = json.loads((out / "finetune.json").read_text())
