@@ -292,6 +292,25 @@ def _model_replay(
     return replies, log
 
 
+def _move_wipers_quietly(emu: AvrEmulator, counts: dict[str, int]) -> None:
+    """Move wipers between frames, on the chip's clock rather than the wall's: every byte sent
+    so far is processed first, and the next is sent only once the chip's ADC has read each new
+    voltage, so no frame is handled while a reading changes (a loaded machine slows the chip
+    as much as it likes)."""
+    assert emu.sync(timeout_s=scaled(10.0)), "the chip did not catch up with the bytes sent"
+    seen = len(emu.adc_log)
+    for name, value in counts.items():
+        emu.set_pot_counts(name, value)
+    wanted = {emu.spec.actuator_names.index(n): v for n, v in counts.items()}
+
+    def read_back() -> bool:
+        new = emu.adc_log[seen:]
+        return all(any(i == j and c == v for _, i, c in new) for j, v in wanted.items())
+
+    assert emu.wait_until(read_back, timeout_s=scaled(10.0)), f"the ADC never read {counts}"
+    assert emu.sync(timeout_s=scaled(10.0))
+
+
 @pytest.mark.parametrize(("seed", "build"), [(1, "pwm"), (2, "pwm"), (3, "pots")])
 def test_avr_binary_matches_the_python_model(
     spec: ArmSpec, make_avr: Callable[..., AvrEmulator], seed: int, build: str
@@ -311,10 +330,7 @@ def test_avr_binary_matches_the_python_model(
     with serial.Serial(emu.port, 115200, timeout=0) as port:
         for k, (pause, data) in enumerate(chunks):
             if k == half and pinned:  # a quiet moment: no frame in flight, none due soon
-                time.sleep(0.05)
-                emu.set_pot_counts(names[0], 800)
-                emu.set_pot_counts(names[2], 1020)  # beyond the calibrated span: clamped
-                time.sleep(0.05)
+                _move_wipers_quietly(emu, {names[0]: 800, names[2]: 1020})  # 1020: clamped
             time.sleep(pause)
             port.write(data)
             port.read(4096)  # keep the line drained
