@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from hardware.errors import HardwareError, NoReplyError
+from hardware.errors import HardwareError, NoReplyError, StallError
 from hardware.spec import ArmSpec
 from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
@@ -424,11 +424,13 @@ class _Run:
 
     def _recover(self, exc: HardwareError, env: Any, t0: float) -> None:
         """A watchdog trip or an unanswered command on a simulated arm (the machine was too busy
-        to feed it, or the mock arm's process to answer): the episode in flight is lost (ArmEnv
-        parked the arm), the next reset homes it again. Anything else, anything on a real arm,
-        or three in a row, stops the run (``--resume`` continues)."""
+        to feed it, or the mock arm's process to answer), or a stall there (an exploring policy
+        pressed the fingers on the table or the cube, and the arm held, then parked itself):
+        the episode in flight is lost (ArmEnv parked the arm), the next reset homes it again.
+        Anything else, anything on a real arm (a stall there may be a hand in the way: a person
+        looks first), or three in a row, stops the run (``--resume`` continues)."""
         if (
-            not (isinstance(exc, NoReplyError) or "watchdog" in str(exc))
+            not (isinstance(exc, NoReplyError | StallError) or "watchdog" in str(exc))
             or self.fo.deploy.backend == "serial"
             or self._consecutive_trips >= MAX_CONSECUTIVE_TRIPS
         ):

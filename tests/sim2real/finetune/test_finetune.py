@@ -338,3 +338,33 @@ def test_pick_finetunes_from_the_shipped_ddpg_paid_its_shaping_from_percepts(
     d = np.linalg.norm(goal_delta[1:], axis=1)  # a step's reward is on the next observation
     goal_term = np.asarray(REWARDS[TASKS["pick"].default_reward](d, d < 0.02))
     assert np.max(np.abs(logs[0]["reward"][:-1] - goal_term)) > 0.05
+
+
+@pytest.mark.parametrize(
+    ("backend", "recovers"), [("mock", True), ("sim", True), ("serial", False)]
+)
+def test_a_stall_loses_the_episode_on_a_simulated_arm_and_stops_a_real_one(
+    tmp_path: Path, spec: ArmSpec, backend: str, recovers: bool
+) -> None:
+    """An exploring pick policy pressing the fingers on the cube stalls a joint: the arm holds,
+    then parks itself, and on the mock or sim arm the episode is lost and learning goes on (three
+    in a row stop it); on a real arm a person looks first, so the run stops."""
+    from hardware.errors import StallError
+    from sim2real.finetune.runner import MAX_CONSECUTIVE_TRIPS, _Run
+
+    opts = {"mock": DeployOptions(**MOCK), "sim": DeployOptions(backend="sim"),
+            "serial": DeployOptions(backend="serial", port="/dev/null")}[backend]  # fmt: skip
+    run = _Run(_options(tmp_path / "ft", deploy=opts), spec, lambda event: None)
+    stall = StallError("stall: shoulder is 0.149 rad from its command and has not moved")
+    if not recovers:
+        with pytest.raises(StallError, match="^stall: shoulder"):
+            run._recover(stall, None, time.monotonic())
+        return
+    for _ in range(MAX_CONSECUTIVE_TRIPS):
+        run._recover(stall, None, time.monotonic())
+    stops = run.state["stops"]
+    assert [s["recovered"] for s in stops] == [True] * MAX_CONSECUTIVE_TRIPS
+    assert stops[0]["reason"].startswith("StallError: stall: shoulder")
+    assert run.watchdog_trips == 0  # a stall is not a watchdog trip
+    with pytest.raises(StallError):  # the next in a row stops the run
+        run._recover(stall, None, time.monotonic())
