@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import platform
 import shutil
@@ -102,6 +103,14 @@ def live_view(ref: str, spec: Any, rrd: Path) -> Any:
     return LiveView(RerunSink(spec, objects, target="save", where=str(rrd), rate_hz=20.0)).start()
 
 
+def dataset_figures(root: Path) -> dict[str, object]:
+    """What the timing run's dataset holds, read back from its own files (``meta/info.json``)."""
+    info = json.loads((root / "meta" / "info.json").read_text())
+    videos = sorted(p.name for p in root.rglob("*.mp4"))
+    return {"episodes": info.get("total_episodes"), "frames": info.get("total_frames"),
+            "videos": len(videos)}  # fmt: skip
+
+
 def pairs(first: list[bool], second: list[bool]) -> dict[str, int]:
     both = sum(a and b for a, b in zip(first, second, strict=True))
     only1 = sum(a and not b for a, b in zip(first, second, strict=True))
@@ -167,6 +176,12 @@ def main() -> None:
         action="store_true",
         help="timing run: stream every period to a live Rerun view saved to a temporary file "
         "(deploy --view), to measure what the live view costs the loop",
+    )
+    parser.add_argument(
+        "--dataset",
+        action="store_true",
+        help="timing run: record a LeRobot dataset with both cameras (deploy --record-dataset), "
+        "to show the writer thread costs the loop no period and trips no watchdog",
     )
     parser.add_argument(
         "--mock-switch-interval",
@@ -255,7 +270,7 @@ def main() -> None:
                 mock_realtime=not args.no_mock_realtime,
             )
             variant = {"realtime": timing_opts.realtime, "mock_nice": timing_opts.mock_nice,
-                       "live_view": args.view,
+                       "live_view": args.view, "dataset": args.dataset,
                        "mock_realtime": timing_opts.realtime and timing_opts.mock_realtime,
                        "switch_interval_s": args.switch_interval or sys.getswitchinterval(),
                        "mock_switch_interval_s": args.mock_switch_interval or 0.005}  # fmt: skip
@@ -264,10 +279,11 @@ def main() -> None:
                 sys.setswitchinterval(args.switch_interval)
             log_path = Path(tempfile.mkdtemp(prefix="deploy_timing_")) / "loop.npz"
             live = live_view(ref, spec, log_path.parent / "live.rrd") if args.view else None
+            dataset = log_path.parent / "dataset" if args.dataset else None
             try:
                 with busy_core():
                     res = deploy(ref, spec, timing_opts, LoopConfig(episodes=args.timing_episodes),
-                                 log_path=log_path, live=live)  # fmt: skip
+                                 log_path=log_path, live=live, dataset_path=dataset)  # fmt: skip
             except Exception as exc:  # a stop is a result too (a watchdog trip, a lost reply)
                 emit("timing_busy_core_failed", str(exc).splitlines()[0], "", policy=ref,
                      variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
@@ -297,6 +313,9 @@ def main() -> None:
                  variant=variant)  # fmt: skip
             emit("timing_busy_core_long_periods", breakdown(log_path, 1.0 / res.rate_hz), "",
                  policy=ref, variant=variant, load_1min=round(os.getloadavg()[0], 2))  # fmt: skip
+            if dataset is not None:
+                emit("timing_busy_core_dataset", dataset_figures(dataset), "", policy=ref,
+                     episodes=args.timing_episodes, variant=variant)  # fmt: skip
             shutil.rmtree(log_path.parent, ignore_errors=True)
 
 
