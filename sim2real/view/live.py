@@ -41,7 +41,7 @@ _SLOT_FIELDS = 2  # per frame slot: [lock, period index]
 
 
 class LiveViewError(Sim2RealError):
-    """The live viewer's child failed to start (its one line)."""
+    """The live viewer's child failed to start (its one line), or it was used unstarted."""
 
 
 @dataclass(frozen=True)
@@ -233,8 +233,14 @@ class LiveProcess:
         open): a sink that cannot start raises here, before the arm moves."""
         if importlib.util.find_spec("rerun") is None:  # named as the 'view' extra by the CLI
             raise ModuleNotFoundError("No module named 'rerun'", name="rerun")
+        if self.closed:
+            raise LiveViewError("the live view was closed; make a new one")
         if not self._child.running:
-            self._child.start()
+            try:
+                self._child.start()
+            except BaseException:
+                self.close()  # the shared memory goes with it
+                raise
         return self
 
     @property
@@ -296,10 +302,11 @@ class LiveProcess:
         if self.closed:
             return
         self.closed = True
+        started = self._child.pid is not None
         died = self._child.death()
         answer = self._child.stop()
-        if isinstance(answer, dict):
-            self._final = answer
+        if isinstance(answer, dict) or not started:
+            self._final = answer or self._counts.read()
         else:  # dead or killed: what it had counted in shared memory
             self._final = self._counts.read()
             if self.failed is None:
