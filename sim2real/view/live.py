@@ -52,7 +52,7 @@ class LiveConfig:
     frames_every: int = 1  # send the camera pair every N-th period (0: never)
     nice: int = 10  # the child yields its core to the loop
     start_timeout_s: float = 120.0  # the child imports Rerun (seconds on a loaded machine)
-    close_timeout_s: float = 10.0  # how long ``close`` waits for the child to draw and flush
+    close_timeout_s: float = 30.0  # how long ``close`` waits for the child to draw and flush
 
     def __post_init__(self) -> None:
         if not 1 <= self.queue_periods <= 100_000:

@@ -99,7 +99,8 @@ def test_the_child_draws_a_real_log_period_by_period(
     pairs = (n + 1) // 2
     assert pairs <= 64, "the ring must hold every pair for this test"
     out = tmp_path / "live.rrd"
-    config = LiveConfig(queue_periods=n, stalled_periods=n, frames_every=2, frame_slots=pairs)
+    config = LiveConfig(queue_periods=n, stalled_periods=n, frames_every=2, frame_slots=pairs,
+                        close_timeout_s=BOUND_S)  # fmt: skip
     rows: dict[str, list[object]] = {}
     pair = _pair()
     with LiveProcess(_job(out), config) as live:
@@ -125,7 +126,7 @@ def test_a_stalled_child_drops_periods_and_never_blocks_the_caller(
     ``stalled_periods`` and drops the rest (a caller that waited would hang: pytest's timeout);
     resumed, it draws at most its ``queue_periods`` newest of them."""
     out = tmp_path / "live.rrd"
-    config = LiveConfig(queue_periods=4, stalled_periods=16, frame_slots=2)
+    config = LiveConfig(queue_periods=4, stalled_periods=16, frame_slots=2, close_timeout_s=BOUND_S)
     with LiveProcess(_job(out), config) as live:
         assert live.pid is not None
         _stop(live.pid)
