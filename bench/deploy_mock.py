@@ -97,10 +97,10 @@ def live_view(ref: str, spec: Any, rrd: Path) -> Any:
     from sim2real.deploy.policy_io import policy_io
     from sim2real.export.policy import load_policy
     from sim2real.policies import resolve_policy
-    from sim2real.view.live import LiveView, RerunSink
+    from sim2real.view.live import LiveJob, LiveProcess
 
     objects = policy_io(spec, load_policy(resolve_policy(ref)).meta).contract.objects
-    return LiveView(RerunSink(spec, objects, target="save", where=str(rrd), rate_hz=20.0)).start()
+    return LiveProcess(LiveJob(spec, objects, target="save", where=str(rrd), rate_hz=20.0)).start()
 
 
 def dataset_figures(root: Path) -> dict[str, object]:
@@ -294,7 +294,8 @@ def main() -> None:
                 if live is not None:
                     live.close()
                     emit("timing_busy_core_live_view", {"drawn": live.drawn,
-                         "dropped": live.dropped}, "periods", policy=ref, variant=variant)  # fmt: skip
+                         "dropped": live.dropped, "frames_skipped": live.frames_skipped,
+                         "failed": live.failed}, "periods", policy=ref, variant=variant)  # fmt: skip
             s = res.summary().to_json()
             jitter = s["period_jitter_ms"]
             emit("timing_busy_core_loop_hz", round(s["loop_hz"], 3), "Hz", policy=ref, target=20,

@@ -52,19 +52,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _live_view(where: str | None, policy: str, spec: Any, rate_hz: float) -> Any:
-    """``--view``: a LiveView over a RerunSink (a missing extra is named in one line)."""
+    """``--view``: the live viewer's child process, started (a missing extra is named in one
+    line; a target it cannot open fails here, before the arm moves)."""
     if where is None:
         return None
     from sim2real.deploy.policy_io import policy_io
     from sim2real.export.policy import load_policy
     from sim2real.policies import resolve_policy
-    from sim2real.view.live import LiveView, RerunSink
+    from sim2real.view.live import LiveJob, LiveProcess
 
     target, _, address = where.partition(":")
     meta = load_policy(resolve_policy(policy)).meta
     objects = policy_io(spec, meta).contract.objects
-    sink = RerunSink(spec, objects, target=target, where=address or None, rate_hz=rate_hz)
-    return LiveView(sink).start()
+    job = LiveJob(spec, objects, target=target, where=address or None, rate_hz=rate_hz)
+    return LiveProcess(job).start()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -98,8 +99,11 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
     finally:
         if live is not None:
-            live.close()  # drains what is queued, then the sink writes or flushes
+            live.close()  # the child draws what it was sent, flushes its sink and goes
     summary = {"backend": opts.backend, **result.summary().to_json()}
+    if live is not None:  # what the viewer skipped to keep up (a drop never slows the arm)
+        summary["live_view"] = {"drawn": live.drawn, "dropped": live.dropped,
+                                "failed": live.failed}  # fmt: skip
     if args.json:
         print(json.dumps(summary))
     else:

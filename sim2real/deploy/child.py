@@ -88,6 +88,9 @@ def _last_words(stderr: IO[bytes] | None) -> str:
 
 
 # ---- shared memory ------------------------------------------------------------------------------
+_OWNED: set[str] = set()  # the blocks this process created: attached here too, e.g. a frame block
+
+
 class SharedBlock:
     """Shared memory: created here (``name=None``: this process owns it and unlinks it on
     close) or another process's, attached by name (never unlinked here: Python's resource
@@ -99,9 +102,13 @@ class SharedBlock:
         self.owner = name is None
         if name is None:
             self._shm = shared_memory.SharedMemory(create=True, size=max(nbytes, 1))
+            _OWNED.add(self._shm._name)  # type: ignore[attr-defined]
         else:
             self._shm = shared_memory.SharedMemory(name=name)
-            resource_tracker.unregister(self._shm._name, "shared_memory")  # type: ignore[attr-defined]
+            if self._shm._name not in _OWNED:  # type: ignore[attr-defined]
+                # (its owner's registration, in this process, must stay: the tracker keeps
+                # one entry a name, and the owner's unlink removes it)
+                resource_tracker.unregister(self._shm._name, "shared_memory")  # type: ignore[attr-defined]
         self.closed = False
 
     @property
@@ -121,6 +128,7 @@ class SharedBlock:
         with contextlib.suppress(BufferError):
             self._shm.close()
         if self.owner:
+            _OWNED.discard(self._shm._name)  # type: ignore[attr-defined]
             with contextlib.suppress(FileNotFoundError):
                 self._shm.unlink()
 

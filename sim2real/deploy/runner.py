@@ -32,8 +32,8 @@ DeployOptions = ArmConnection
 
 
 class LivePeriods(Protocol):
-    """Where a live view takes each period (``sim2real.view.live.LiveView``; the deploy runtime
-    does not import the viewer): it must return at once, whatever its consumer does."""
+    """Where a live view takes each period (``sim2real.view.live.LiveProcess``; the deploy
+    runtime does not import the viewer): it must return at once, whatever its consumer does."""
 
     def log_period(self, row: Mapping[str, Any], frames_bgr: Any = None) -> bool: ...
 
@@ -330,8 +330,8 @@ def run_policy(
     live: LivePeriods | None = None,
 ) -> DeployResult:
     """Any callable policy on a backend (a scripted one in tests, a learner's actor). ``live``
-    (``sim2real.view.live.LiveView``) gets each period's log row and camera pair from the
-    control thread; it only queues them (its worker draws off the loop's path)."""
+    (``sim2real.view.live.LiveProcess``) gets each period's log row and camera pair from the
+    control thread; it only posts them (its child process draws off the loop's path)."""
     with contextlib.ExitStack() as stack:
         arm, perception, world = BACKENDS[opts.backend](spec, io, opts, stack)
         bind = getattr(policy, "bind", None)

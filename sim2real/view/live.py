@@ -1,53 +1,76 @@
 """Live view: a running deploy's periods streamed to Rerun without costing the loop its period.
 
-The control thread calls ``LiveView.log_period(row, frames)`` once a period, right after the
-period's log row is written. That call only copies the row (and, every ``frames_every`` periods,
-the frame pair) into a bounded queue and returns; a worker thread draws from the queue into a
-sink (``RerunSink``: the same drawing as ``sim2real view``, so a live run and its saved log look
-alike). A full queue drops its oldest period, never blocks: a slow viewer shows the newest
-periods and counts what it skipped (``dropped``). A sink that fails is logged once and then
-ignored: the arm never stops for its viewer.
+The drawing runs in a child process (``python -m sim2real.view.live_child``, a
+``deploy.child.ChildProcess``): drawing in Python (the series, the safety filter's replay,
+Rerun's Arrow conversion) holds the interpreter's lock, and on a thread of the control process
+the loop, awake on time, would wait for it. The control thread's ``LiveProcess.log_period(row,
+frames)`` only copies the row onto the channel (``post``, which never waits) and the camera pair
+into a ring of shared-memory slots under the sequence lock; the child copies a pair out and
+skips one the parent overwrote meanwhile. The child counts what it drew in shared memory, so
+the parent knows the backlog without asking: a child that lags keeps only the newest periods
+(``queue_periods``), a stalled one makes the parent drop periods rather than queue them, and
+the counts say what was skipped (``dropped``). A child that dies (a viewer gone, a drawing
+error) is logged once and bypassed: the arm never stops for its viewer.
 
-    live = LiveView(RerunSink(spec, objects=("target",), target="spawn"))
-    with live:                       # starts the worker; closing drains what is queued
+    live = LiveProcess(LiveJob(spec, objects=("target",), target="spawn", rate_hz=20.0))
+    with live:                       # starts the child; closing draws what is queued, flushes
         ...  # in the loop, after the period's row:  live.log_period(last_row(log.rows), frames)
 """
 
 from __future__ import annotations
 
-import contextlib
+import importlib.util
 import logging
 import math
-import queue
-import threading
-import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from hardware.spec import ArmSpec
-from sim2real.errors import ConfigError, UnknownNameError
+from sim2real.deploy import child
+from sim2real.errors import ConfigError, Sim2RealError, UnknownNameError
 
 log = logging.getLogger(__name__)
+
+CHILD_MODULE = "sim2real.view.live_child"
+_SLOT_FIELDS = 2  # per frame slot: [lock, period index]
+
+
+class LiveViewError(Sim2RealError):
+    """The live viewer's child failed to start (its one line), or it was used unstarted."""
 
 
 @dataclass(frozen=True)
 class LiveConfig:
-    queue_periods: int = 64  # ~3 s at 20 Hz: what a stalled viewer may lag before drops
+    queue_periods: int = 8  # 0.4 s at 20 Hz: how far the child may lag; it skips the oldest
+    stalled_periods: int = 64  # periods posted and not yet taken before the parent drops them
+    frame_slots: int = 4  # camera pairs in shared memory (a 640x480 pair is 1.8 MB)
     frames_every: int = 1  # send the camera pair every N-th period (0: never)
-    close_timeout_s: float = 5.0  # how long ``close`` waits for the worker to drain
+    nice: int = 10  # the child yields its core to the loop
+    start_timeout_s: float = 120.0  # the child imports Rerun (seconds on a loaded machine)
+    close_timeout_s: float = 30.0  # how long ``close`` waits for the child to draw and flush
 
     def __post_init__(self) -> None:
         if not 1 <= self.queue_periods <= 100_000:
             raise ConfigError(f"queue_periods {self.queue_periods} not in [1, 100000]")
+        if not self.queue_periods <= self.stalled_periods <= 1_000_000:
+            raise ConfigError(
+                f"stalled_periods {self.stalled_periods} not in "
+                f"[queue_periods {self.queue_periods}, 1000000]"
+            )
+        if not 1 <= self.frame_slots <= 64:
+            raise ConfigError(f"frame_slots {self.frame_slots} not in [1, 64]")
         if self.frames_every < 0:
             raise ConfigError(f"frames_every {self.frames_every} must be >= 0 (0: no frames)")
-        if not self.close_timeout_s > 0:
-            raise ConfigError(f"close_timeout_s {self.close_timeout_s} must be > 0")
+        if not 0 <= self.nice <= 19:
+            raise ConfigError(f"nice {self.nice} not in [0, 19]")
+        for name in ("start_timeout_s", "close_timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} {getattr(self, name)} must be > 0")
 
 
 @dataclass(frozen=True)
@@ -57,14 +80,6 @@ class LivePeriod:
     frames_bgr: tuple[np.ndarray, np.ndarray] | None  # the cameras' pair as delivered (BGR)
 
 
-class PeriodSink(Protocol):
-    """Where the worker puts periods; runs on the worker thread only."""
-
-    def period(self, item: LivePeriod) -> None: ...
-
-    def close(self) -> None: ...
-
-
 def last_row(rows: Mapping[str, Sequence[Any]]) -> dict[str, Any]:
     """The newest row of a ``LoopLog``'s ``rows``: every key logged this period (a key the
     period did not log, such as ``grasped`` without the truth, is left out)."""
@@ -72,84 +87,236 @@ def last_row(rows: Mapping[str, Sequence[Any]]) -> dict[str, Any]:
     return {k: v[-1] for k, v in rows.items() if n and len(v) == n}
 
 
-_STOP = object()
+@dataclass(frozen=True)
+class LiveJob:
+    """What the child draws and where (picklable: it is the child's job)."""
+
+    spec: ArmSpec
+    objects: tuple[str, ...]
+    target: str = "spawn"  # a key of ``LIVE_TARGETS``
+    where: str | None = None  # connect: the viewer's address; save: the file
+    label: str = "live"
+    rate_hz: float | None = None  # the loop's rate, for the overrun events (None: none)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "objects", tuple(self.objects))
+        if self.target not in LIVE_TARGETS:
+            raise UnknownNameError("live view target", self.target, LIVE_TARGETS)
+        if self.target == "save" and not self.where:
+            raise ConfigError("live view target 'save' needs a path (FILE.rrd)")
+        if self.rate_hz is not None and not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ConfigError(f"rate_hz {self.rate_hz} must be > 0 (or None)")
+
+    def sink(self) -> RerunSink:
+        return RerunSink(self.spec, self.objects, self.target, self.where, self.label,
+                         self.rate_hz)  # fmt: skip
 
 
-class LiveView:
-    """A bounded queue and a worker thread between the control loop and a sink."""
+class ChildCounts:
+    """The child's counts in shared memory, written by the child only (one writer: no lock; the
+    parent reads them for the backlog): periods drawn, periods it skipped to keep up, and pairs
+    it skipped because the parent overwrote their slot meanwhile. ``name=None`` creates it."""
 
-    def __init__(self, sink: PeriodSink, config: LiveConfig | None = None) -> None:
-        self.sink, self.config = sink, config or LiveConfig()
-        self._queue: queue.Queue[Any] = queue.Queue(self.config.queue_periods)
-        self._thread: threading.Thread | None = None
-        self._index = 0
-        self.dropped = 0  # periods dropped because the queue was full
-        self.drawn = 0  # periods the sink took
-        self.failed: str | None = None  # the sink's first error, after which it is bypassed
+    KEYS = ("drawn", "skipped", "frames_skipped")
 
-    def start(self) -> LiveView:
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._work, name="live-view", daemon=True)
-            self._thread.start()
+    def __init__(self, name: str | None = None) -> None:
+        self._block = child.SharedBlock(8 * len(self.KEYS), name)
+        self.values: np.ndarray = self._block.array(len(self.KEYS))
+        if name is None:
+            self.values[:] = 0.0
+
+    @property
+    def name(self) -> str:
+        return self._block.name
+
+    def add(self, key: str) -> None:
+        self.values[self.KEYS.index(key)] += 1
+
+    def read(self) -> dict[str, int]:
+        return {k: int(v) for k, v in zip(self.KEYS, self.values, strict=True)}
+
+    def done(self) -> int:
+        """Periods the child took off the channel (drawn or skipped)."""
+        return int(self.values[0] + self.values[1])
+
+    def close(self) -> None:
+        if not self._block.closed:
+            del self.values  # the view goes before the buffer closes
+            self._block.close()
+
+
+class FrameRing:
+    """Camera pairs in shared memory: ``slots`` slots, each under its own sequence lock with the
+    index of the period it holds. The parent writes pairs into the slots in turn; the child
+    copies a slot out and keeps it only if it still holds the period it asked for.
+    ``name=None`` creates it (this process owns and unlinks it); a name attaches."""
+
+    def __init__(self, shape: tuple[int, ...], slots: int, name: str | None = None) -> None:
+        self.shape, self.slots = tuple(shape), slots
+        header = 8 * _SLOT_FIELDS * slots
+        self._block = child.SharedBlock(header + 2 * slots * int(np.prod(shape)), name)
+        self.header: np.ndarray = self._block.array(_SLOT_FIELDS * slots)
+        self.images: np.ndarray = self._block.array((slots, 2, *shape), np.uint8, header)
+        if name is None:
+            self.header[:] = 0.0
+            self.header[1::_SLOT_FIELDS] = -1.0  # no period yet
+        self._written = 0
+
+    @property
+    def name(self) -> str:
+        return self._block.name
+
+    def fits(self, pair: tuple[np.ndarray, np.ndarray]) -> bool:
+        return all(im.shape == self.shape and im.dtype == np.uint8 for im in pair)
+
+    def write(self, index: int, pair: tuple[np.ndarray, np.ndarray]) -> int:
+        """Period ``index``'s pair into its slot (a memcpy); returns the slot."""
+        slot = self._written % self.slots
+        self._written += 1
+        at = _SLOT_FIELDS * slot
+        with child.seqlock(self.header, at):
+            self.images[slot, 0] = pair[0]
+            self.images[slot, 1] = pair[1]
+            self.header[at + 1] = index
+        return slot
+
+    def read(self, index: int, slot: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Period ``index``'s pair, copied; None if the parent overwrote (or is writing) it."""
+        at = _SLOT_FIELDS * slot
+
+        def copy() -> tuple[float, np.ndarray, np.ndarray]:
+            return (
+                float(self.header[at + 1]),
+                self.images[slot, 0].copy(),
+                self.images[slot, 1].copy(),
+            )
+
+        got = child.read_consistent(self.header, copy, at=at, tries=3)
+        if got is None or got[0] != index:
+            return None
+        return got[1], got[2]
+
+    def close(self) -> None:
+        if not self._block.closed:
+            del self.header, self.images  # numpy views must go before the buffer closes
+            self._block.close()
+
+
+class LiveProcess:
+    """The parent's side (``runner.LivePeriods``): ``log_period`` posts and returns; the child
+    (``live_child``) draws. ``drawn``/``dropped`` count periods; ``failed`` is the child's death
+    line once it died, after which the view is bypassed."""
+
+    def __init__(self, job: LiveJob, config: LiveConfig | None = None) -> None:
+        self.job, self.config = job, config or LiveConfig()
+        self._counts = ChildCounts()
+        self._child = child.ChildProcess(
+            "live viewer", CHILD_MODULE, (job, self.config, self._counts.name),
+            start_timeout_s=self.config.start_timeout_s,
+            stop_timeout_s=self.config.close_timeout_s, nice=self.config.nice,
+            error=LiveViewError,
+        )  # fmt: skip
+        self._ring: FrameRing | None = None
+        self._index = 0  # periods offered
+        self._posted = 0  # periods posted to the child
+        self._parent_dropped = 0  # periods not posted: the child had stalled
+        self._final: dict[str, int] | None = None  # the counts the child answered at stop
+        self.failed: str | None = None
+        self.closed = False
+
+    @property
+    def pid(self) -> int | None:
+        return self._child.pid
+
+    def start(self) -> LiveProcess:
+        """Start the child and wait until its sink is up (a viewer spawned, connected, a file
+        open): a sink that cannot start raises here, before the arm moves."""
+        if importlib.util.find_spec("rerun") is None:  # named as the 'view' extra by the CLI
+            raise ModuleNotFoundError("No module named 'rerun'", name="rerun")
+        if self.closed:
+            raise LiveViewError("the live view was closed; make a new one")
+        if not self._child.running:
+            try:
+                self._child.start()
+            except BaseException:
+                self.close()  # the shared memory goes with it
+                raise
         return self
+
+    @property
+    def drawn(self) -> int:
+        return self._count("drawn")
+
+    @property
+    def dropped(self) -> int:
+        """Periods offered and never drawn: skipped by a lagging child, or not posted to a
+        stalled one."""
+        return self._parent_dropped + self._count("skipped")
+
+    @property
+    def frames_skipped(self) -> int:
+        return self._count("frames_skipped")
+
+    def _count(self, key: str) -> int:
+        return (self._final or self._counts.read())[key]
 
     def log_period(
         self, row: Mapping[str, Any], frames_bgr: tuple[np.ndarray, np.ndarray] | None = None
     ) -> bool:
-        """Queue one period (the control thread; never blocks). False: a period was dropped."""
-        every = self.config.frames_every
-        pair = None
-        if frames_bgr is not None and every and self._index % every == 0:
-            pair = (frames_bgr[0].copy(), frames_bgr[1].copy())  # the source reuses its buffers
-        item = LivePeriod(self._index, {k: _copy(v) for k, v in row.items()}, pair)
+        """Hand one period to the child (the control thread; never blocks). False: the period
+        was not posted (a stalled or dead child)."""
+        if self._child.pid is None:
+            raise LiveViewError("the live view was not started (start() or a with block)")
+        index = self._index
         self._index += 1
-        try:
-            self._queue.put_nowait(item)
-            return True
-        except queue.Full:
-            pass
-        with contextlib.suppress(queue.Empty):  # the oldest goes: the viewer shows the newest
-            self._queue.get_nowait()
-        self.dropped += 1
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:  # the worker is gone and another caller filled it: drop this one
-            self.dropped += 1
-        return False
+        if self.failed is not None or self.closed:
+            return False
+        died = self._child.death()
+        if died is not None:
+            self.failed = died
+            log.warning("live view stopped drawing: %s", died)
+            return False
+        if self._posted - self._counts.done() >= self.config.stalled_periods:
+            self._parent_dropped += 1
+            return False
+        slot = self._frames(index, frames_bgr)
+        self._child.post("period", index, {k: _copy(v) for k, v in row.items()}, slot)
+        self._posted += 1
+        return True
 
-    def _work(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is _STOP:
-                break
-            if self.failed is not None:
-                continue
-            try:
-                self.sink.period(item)
-                self.drawn += 1
-            except Exception as exc:  # the viewer went away: the deploy goes on without it
-                self.failed = f"{type(exc).__name__}: {exc}"
-                log.warning("live view stopped drawing: %s", self.failed)
+    def _frames(self, index: int, pair: tuple[np.ndarray, np.ndarray] | None) -> int | None:
+        """The pair into the ring (made at the first pair, its shape the run's); its slot."""
+        every = self.config.frames_every
+        if pair is None or not every or index % every:
+            return None
+        if self._ring is None:
+            self._ring = FrameRing(pair[0].shape, self.config.frame_slots)
+            self._child.post("frames", self._ring.name, self._ring.shape, self._ring.slots)
+        if not self._ring.fits(pair):  # a camera does not change its size mid-run
+            return None
+        return self._ring.write(index, pair)
 
     def close(self) -> None:
-        """Drain what is queued (up to ``close_timeout_s``), stop the worker, close the sink."""
-        thread, self._thread = self._thread, None
-        if thread is not None:
-            deadline = time.monotonic() + self.config.close_timeout_s
-            while True:
-                try:
-                    self._queue.put(_STOP, timeout=0.05)
-                    break
-                except queue.Full:
-                    if time.monotonic() > deadline or not thread.is_alive():
-                        break
-            thread.join(max(0.0, deadline - time.monotonic()))
-        try:
-            self.sink.close()
-        except Exception as exc:
-            log.warning("live view: closing the sink failed: %s", exc)
+        """The child draws what it was sent (up to ``close_timeout_s``), flushes and closes its
+        sink and answers its counts; then it is gone (killed if it does not answer)."""
+        if self.closed:
+            return
+        self.closed = True
+        started = self._child.pid is not None
+        died = self._child.death()
+        answer = self._child.stop()
+        if isinstance(answer, dict) or not started:
+            self._final = answer or self._counts.read()
+        else:  # dead or killed: what it had counted in shared memory
+            self._final = self._counts.read()
+            if self.failed is None:
+                self.failed = died or "the live viewer did not answer its stop in time"
+                log.warning("live view stopped drawing: %s", self.failed)
+        self._counts.close()
+        if self._ring is not None:
+            self._ring.close()
 
-    def __enter__(self) -> LiveView:
+    def __enter__(self) -> LiveProcess:
         return self.start()
 
     def __exit__(

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from hardware.errors import HardwareError
 from sim2real.deploy.child import (
@@ -224,3 +227,19 @@ def test_a_block_is_unlinked_by_its_owner_only() -> None:
     owner.close()
     with pytest.raises(FileNotFoundError):
         SharedBlock(name=owner.name)
+
+
+def test_a_block_attached_in_its_owners_process_keeps_the_owners_registration() -> None:
+    """A frame block read where it is written (a video, the live view): the attacher leaves the
+    resource tracker's one entry to the owner, whose unlink removes it (before, the tracker
+    said KeyError on its stderr, and would not have cleaned up after a crash)."""
+    script = (
+        "from sim2real.deploy.child import SharedBlock\n"
+        "owner = SharedBlock(64)\n"
+        "SharedBlock(name=owner.name).close()\n"
+        "owner.close()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=scaled(120))  # fmt: skip
+    assert done.returncode == 0 and "KeyError" not in done.stderr, done.stderr
+    assert "leaked" not in done.stderr, done.stderr
