@@ -179,6 +179,12 @@ def test_a_drawing_error_ends_the_child_in_one_line_and_keeps_what_it_drew(
     with caplog.at_level(logging.WARNING, logger="sim2real.view.live"):
         for k in range(3):
             assert live.log_period(_row(k))
+        # drawn first: a child still busy with its first drawing when the later periods come
+        # keeps only the newest queue_periods of them, and might skip the malformed one
+        deadline = time.monotonic() + BOUND_S
+        while live.drawn < 3:
+            assert time.monotonic() < deadline, f"the child drew {live.drawn} of 3 periods"
+            time.sleep(0.01)
         live.log_period({**_row(3), "t_s": "not a time"})  # a malformed row
         _until_bypassed(live, 4)  # (a zombie's threads may still be flushing the file)
         live.close()
