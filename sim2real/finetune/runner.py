@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from hardware.errors import HardwareError, NoReplyError, StallError
+from hardware.errors import HardwareError, NoReplyError, SafetyError, StallError
 from hardware.spec import ArmSpec
 from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
@@ -264,7 +264,7 @@ class _Run:
                     {"reason": self.stop_reason, "episode": self.state["episodes"],
                      "env_steps": self.state["env_steps"]}
                 )  # fmt: skip
-                self.watchdog_trips += int("watchdog" in str(exc))
+                self.watchdog_trips += int(_tripped(exc))
                 env.close()  # the arm first: parked (or held, torque off, after an e-stop)
                 end = env.end_state
                 self.state["stops"][-1]["arm_end"] = {} if end is None else end.to_json()
@@ -430,13 +430,13 @@ class _Run:
         Anything else, anything on a real arm (a stall there may be a hand in the way: a person
         looks first), or three in a row, stops the run (``--resume`` continues)."""
         if (
-            not (isinstance(exc, NoReplyError | StallError) or "watchdog" in str(exc))
+            not (isinstance(exc, NoReplyError | StallError) or _tripped(exc))
             or self.fo.deploy.backend == "serial"
             or self._consecutive_trips >= MAX_CONSECUTIVE_TRIPS
         ):
             raise exc
         self._consecutive_trips += 1
-        self.watchdog_trips += int("watchdog" in str(exc))
+        self.watchdog_trips += int(_tripped(exc))
         self.state["arm_s"] = float(self.state["arm_s"]) + time.monotonic() - t0
         self.state["stops"].append(
             {"reason": _why(exc), "episode": self.state["episodes"], "recovered": True,
@@ -557,6 +557,13 @@ def _learner_errors() -> tuple[type[BaseException], ...]:
     from sim2real.finetune.learner import LearnerError
 
     return (LearnerError,)
+
+
+def _tripped(exc: BaseException) -> bool:
+    """A watchdog's doing: the host's (its e-stop names it) or the firmware's, which switched
+    the torque off under a host that stopped talking (the next command is refused for it)."""
+    text = str(exc)
+    return "watchdog" in text or (isinstance(exc, SafetyError) and text.startswith("torque is off"))
 
 
 def _why(exc: BaseException) -> str:
