@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 Report = Callable[[dict[str, Any]], None]
 MAX_CONSECUTIVE_TRIPS = 3  # watchdog trips in a row that a simulated arm recovers from
+RETRY_SEED_STRIDE = 1_000_003  # a retried episode's seed offset (beyond any run's episode count)
 
 
 @dataclass(frozen=True)
@@ -377,7 +378,10 @@ class _Run:
                 info: dict[str, Any] = {}
                 shaper.reset()
                 try:
-                    obs, _ = env.reset(seed=fo.seed + episode)
+                    # a lost episode's retry draws its objects anew: the placement that made
+                    # the policy press the cube into the table would likely do so again
+                    retry = RETRY_SEED_STRIDE * self._consecutive_trips
+                    obs, _ = env.reset(seed=fo.seed + episode + retry)
                 except HardwareError as exc:
                     self._recover(exc, env, t0)
                     continue
