@@ -171,18 +171,33 @@ def main() -> int:
             cell["adapt_wall_at_default_episodes_s"] = round(at_default_s, 1)
             ok_wall = at_default_s <= WALL_TARGET_S
             failed |= not (ok_ratio and ok_wall)
-            emit(cell)
-            emit(
-                {
-                    "policy": policy,
-                    "plant": plant,
-                    "metric": "targets",
-                    "ratio_adapted_target": f">= {RATIO_TARGET}",
-                    "adapt_wall_target_s": WALL_TARGET_S,
-                    "pass": ok_ratio and ok_wall,
-                }
-            )
+            print(json.dumps({**cell, "pass": ok_ratio and ok_wall}), flush=True)  # the detail
+            emit(curated(cell))  # the figure the pages show
     return 1 if failed else 0
+
+
+def curated(cell: dict[str, Any]) -> dict[str, Any]:
+    """A cell as the benchmark pages show it: mock ÷ sim after adapt, with the zero-shot ratio,
+    the mock success and adapt's wall at its default episode count in the note."""
+    n, after = cell["episodes"], cell["mock_adapted"]
+    lo, hi = after["wilson95"]
+    minutes = cell.get("adapt_wall_at_default_episodes_s", cell["adapt_wall_s"]) / 60.0
+    return {
+        "metric": "mock_over_sim_after_adapt",
+        "label": f"`{cell['policy']}` on the `{cell['plant']}` plant",
+        "value": cell["ratio_adapted"],
+        "unit": "ratio",
+        "policy": cell["policy"],
+        "plant": cell["plant"],
+        "target": f">= {RATIO_TARGET}",
+        "note": (
+            f"zero-shot {cell['ratio_zero_shot']:.2f}; mock after adapt "
+            f"{after['success_rate']:.2f} [{lo:.2f}, {hi:.2f}] on {n} paired episodes; adapt at "
+            f"its default 20 episodes {minutes:.1f} min"
+        ),
+        "episodes": n,
+        "table": f"Mock ÷ sim success after `sim2real adapt`, {n} paired episodes per figure",
+    }
 
 
 if __name__ == "__main__":
