@@ -80,7 +80,19 @@ class LearnerConfig:
     # hindsight goals: this share of every online batch gets a goal reached later in its episode
     relabel_ratio: float = 0.0
     goal_fields: GoalFields | None = None
+    # imitation minibatches towards ``anchor_zip``'s actor per gradient step (0: none). A source
+    # trained with a DAgger anchor keeps one here, its teacher the source actor itself (the
+    # privileged teacher needs the simulator's truth): without it the algorithm's own updates
+    # undo the imitation (``docs/studies/pick.md``: DDPG without the anchor fell to 0 %).
+    anchor_ratio: float = 0.0
+    anchor_zip: str | None = None  # the source's model (a resumed run's model_zip is its own)
     extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.anchor_ratio) and self.anchor_ratio >= 0):
+            raise LearnerError(f"anchor ratio {self.anchor_ratio!r} must be a number >= 0")
+        if self.anchor_ratio > 0 and not self.anchor_zip:
+            raise LearnerError("an anchor ratio > 0 needs the source model (anchor_zip)")
 
 
 class RewardShaper:
@@ -234,6 +246,18 @@ class Learner:
             ))  # fmt: skip
         if cfg.sim_buffer is not None:
             self.buffer.sim = self._collect_sim(cfg.sim_buffer)
+        self.imitation_updates = 0
+        self._anchor: Any = None  # the source actor, frozen
+        self._anchor_debt = 0.0  # imitation minibatches owed (the ratio's fractions)
+        if cfg.anchor_ratio > 0:
+            if self.kind != "deterministic":
+                raise LearnerError(
+                    f"the source anchor needs a deterministic actor, not {self.kind}"
+                )
+            source = cls.load(cfg.anchor_zip, device="cpu", custom_objects={"buffer_size": 1})  # type: ignore[attr-defined]
+            self._anchor = source.actor.eval()
+            for param in self._anchor.parameters():
+                param.requires_grad_(False)
 
     @property
     def updates(self) -> int:
@@ -258,6 +282,7 @@ class Learner:
         if self.buffer.size() >= self.cfg.actor_starts or not hasattr(model, "policy_delay"):
             model.policy_delay = self.policy_delay
             model.train(gradient_steps=steps, batch_size=self.batch_size)
+            self._imitate(steps)
             return
         from stable_baselines3.common.utils import polyak_update
 
@@ -267,6 +292,27 @@ class Learner:
             model.train(gradient_steps=1, batch_size=self.batch_size)
             polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
         model.policy_delay = self.policy_delay
+
+    def _imitate(self, steps: int) -> None:
+        """``anchor_ratio`` imitation minibatches per gradient step: the actor's action on
+        buffer states regressed on the source actor's (squared error), as ``ImitationAnchor``
+        does in training, after the algorithm's own updates."""
+        if self._anchor is None:
+            return
+        import torch as th
+
+        self._anchor_debt += self.cfg.anchor_ratio * steps
+        n, self._anchor_debt = int(self._anchor_debt), self._anchor_debt % 1.0
+        actor = self.model.actor
+        for _ in range(n):
+            obs = self.buffer.sample(self.batch_size).observations
+            with th.no_grad():
+                target = self._anchor(obs)
+            loss = th.nn.functional.mse_loss(actor(obs), target)
+            actor.optimizer.zero_grad()
+            loss.backward()
+            actor.optimizer.step()
+        self.imitation_updates += n
 
     @staticmethod
     def action_rate_penalty(config: dict[str, Any]) -> float:

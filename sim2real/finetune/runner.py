@@ -41,6 +41,9 @@ log = logging.getLogger(__name__)
 
 Report = Callable[[dict[str, Any]], None]
 MAX_CONSECUTIVE_TRIPS = 3  # watchdog trips in a row that a simulated arm recovers from
+# The source's own anchor (``ddpg_pick``'s 100 imitation minibatches per 200 updates): a DAgger
+# source keeps it on the arm, its teacher the source actor (finetune has no privileged state).
+DAGGER_ANCHOR_RATIO = 0.5
 RETRY_SEED_STRIDE = 1_000_003  # a retried episode's seed offset (beyond any run's episode count)
 
 
@@ -66,6 +69,9 @@ class FinetuneOptions:
     learning_rate: float | None = None  # None: the source run's
     noise_std: float | None = None  # DDPG/TD3 exploration std (normalised actions); None: default
     relabel: float | None = None  # hindsight-goal share of a batch; None: the task's default
+    # imitation minibatches towards the source actor per gradient step; None: the source's
+    # (DAGGER_ANCHOR_RATIO where it was trained with a DAgger anchor, else none)
+    anchor: float | None = None
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
     learner_nice: int = 10
@@ -87,6 +93,8 @@ class FinetuneOptions:
         for name in ("checkpoint_every", "publish_every", "eval_episodes", "success_window"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"--{name.replace('_', '-')} must be >= 1")
+        if self.anchor is not None and not (math.isfinite(self.anchor) and self.anchor >= 0):
+            raise ConfigError(f"--anchor must be a number >= 0, got {self.anchor!r}")
         if self.noise_std is not None and not (
             math.isfinite(self.noise_std) and 0 <= self.noise_std <= 1
         ):
@@ -147,6 +155,7 @@ class _Run:
             LEARNER_DEFAULTS["noise_std"] if fo.noise_std is None else fo.noise_std
         )
         self.relabel = default_ratio(self.src.config) if fo.relabel is None else fo.relabel
+        self.anchor = default_anchor(self.src.config) if fo.anchor is None else fo.anchor
         self.dir = FinetuneDir(fo.out)
         opts = fo.deploy
         plant = None if opts.plant is None else str(opts.plant)
@@ -212,6 +221,8 @@ class _Run:
             sim_buffer=sim,
             relabel_ratio=ratio,
             goal_fields=goal_fields(src.config) if ratio > 0 else None,
+            anchor_ratio=self.anchor,
+            anchor_zip=str(src.model_zip) if self.anchor > 0 else None,
         )
 
     def checkpoint(self, learner: Any, final: bool = False) -> None:
@@ -387,7 +398,10 @@ class _Run:
                     continue
                 obs_n = norm(obs)
                 while not (truncated or terminated):
-                    weights = learner.new_weights()
+                    # an evaluation block acts with the actor it began with (its transitions
+                    # still teach the learner): the first block is the zero-shot figure, each
+                    # later one the actor at that arm minute, not a blend of newer ones
+                    weights = None if evaluating else learner.new_weights()
                     if weights is not None:
                         actor.load_flat(weights)
                         self.weight_updates += 1
@@ -561,6 +575,11 @@ def _learner_errors() -> tuple[type[BaseException], ...]:
     from sim2real.finetune.learner import LearnerError
 
     return (LearnerError,)
+
+
+def default_anchor(config: dict[str, Any]) -> float:
+    """The source run's anchor: ``DAGGER_ANCHOR_RATIO`` where it trained with a DAgger stage."""
+    return DAGGER_ANCHOR_RATIO if dict(config.get("train") or {}).get("dagger") else 0.0
 
 
 def _tripped(exc: BaseException) -> bool:

@@ -175,3 +175,60 @@ def test_reward_shaper_gives_the_training_wrappers_rewards(spec: ArmSpec) -> Non
     wrapped.close()
     with pytest.raises(Exception, match="-1"):
         RewardShaper(-1.0)
+
+
+def _pick_ddpg_source() -> tuple[Path, dict[str, object]]:
+    import json
+
+    ckpt = shipped()["pick-ddpg"].checkpoint
+    assert ckpt is not None
+    return ckpt[0], json.loads(ckpt[1].read_text())
+
+
+def test_the_source_anchor_keeps_the_actor_near_the_source_under_updates_that_pull_it_away() -> (
+    None
+):
+    """A DAgger-trained source keeps its anchor on the arm: the same transitions (a reward that
+    pays for one action component's low end, whatever the state) move an
+    anchored actor's actions less from the source's than an unanchored one's (a fifth less at
+    least; the source's own learning rate, updates in chunks as the learner process runs them)."""
+    from sim2real.finetune.checkpoint import resolve
+    from sim2real.finetune.runner import DAGGER_ANCHOR_RATIO, default_anchor
+
+    zip_path, stats = _pick_ddpg_source()
+    assert default_anchor(resolve("pick-ddpg", None).config) == DAGGER_ANCHOR_RATIO
+    assert default_anchor(resolve("reach-ddpg", None).config) == 0.0
+    rng = np.random.default_rng(5)
+    drift = {}
+    for ratio in (0.0, 2.0):
+        cfg = LearnerConfig(
+            algo="ddpg", source_algo="ddpg", model_zip=str(zip_path),
+            obs_stats=stats["vecnormalize"],  # type: ignore[arg-type]
+            batch_size=32, anchor_ratio=ratio, anchor_zip=str(zip_path) if ratio else None,
+        )  # fmt: skip
+        learner = Learner(cfg)
+        n_obs = learner.model.observation_space.shape[0]
+        probe = np.random.default_rng(0).normal(size=(64, n_obs)).astype(np.float32)
+        with th.no_grad():
+            before = learner.model.actor(th.as_tensor(probe)).numpy()
+        rng = np.random.default_rng(5)
+        for _ in range(200):
+            obs, nxt = rng.normal(size=(2, n_obs)).astype(np.float32)
+            action = rng.uniform(-1, 1, 4).astype(np.float32)
+            learner.add(obs, action, float(-action[3]), nxt, False)  # pays a closed gripper
+        for _ in range(50):  # in chunks, as the learner process trains between transitions
+            learner.train(2)
+        with th.no_grad():
+            after = learner.model.actor(th.as_tensor(probe)).numpy()
+        drift[ratio] = float(np.mean(np.abs(after - before)))
+        assert learner.imitation_updates == int(ratio * 100)
+    assert drift[2.0] < 0.8 * drift[0.0], drift
+
+
+@pytest.mark.parametrize("bad", [-0.5, float("nan")])
+def test_an_anchor_ratio_that_is_not_a_count_is_refused(bad: float) -> None:
+    from sim2real.finetune.learner import LearnerError
+
+    with pytest.raises(LearnerError, match="anchor ratio"):
+        LearnerConfig(algo="ddpg", source_algo="ddpg", model_zip="m.zip", obs_stats=None,
+                      anchor_ratio=bad, anchor_zip="m.zip")  # fmt: skip
