@@ -63,6 +63,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="share of every batch given a goal the tool reached later in its episode (hindsight "
         f"relabelling; default: {LEARNER_DEFAULTS['relabel']} for reach, 0 for tasks without goals)",
     )  # fmt: skip
+    parser.add_argument(
+        "--anchor", type=float, default=None,
+        help="imitation minibatches towards the source actor per gradient step (default: 0.5 for "
+        "a source trained with a DAgger stage, such as pick-ddpg; 0 otherwise)",
+    )  # fmt: skip
     parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
     parser.add_argument("--batch-size", type=int, default=None)
     parser.add_argument("--learner-nice", type=int, default=10)
@@ -95,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         mix_sim_buffer=args.mix_sim_buffer, sim_buffer_steps=args.sim_buffer_steps,
         resume=args.resume, keys=args.keys, checkpoint_every=args.checkpoint_every,
         learning_starts=args.learning_starts, utd=args.utd, actor_starts=args.actor_starts,
-        learning_rate=args.learning_rate, noise_std=args.noise_std, relabel=args.relabel,
+        learning_rate=args.learning_rate, noise_std=args.noise_std, relabel=args.relabel, anchor=args.anchor,
         publish_every=args.publish_every,
         batch_size=args.batch_size, learner_nice=args.learner_nice,
         success_window=args.success_window, eval_every_min=args.eval_every,
