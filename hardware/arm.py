@@ -26,6 +26,7 @@ from hardware.errors import (
     NotConnectedError,
     SafetyError,
     StallError,
+    TorqueOffError,
 )
 from hardware.safety import SafetyFilter, Watchdog
 from hardware.servo_model import arrival_time_s
@@ -372,7 +373,7 @@ class ArmBase(ABC):
                     )
                 raise SafetyError(f"e-stop latched ({self._estop_reason}); call enable() to resume")
             if not self._enabled:
-                raise SafetyError("torque is off: call enable() (or home()) before command()")
+                raise TorqueOffError("torque is off: call enable() (or home()) before command()")
             try:
                 sent = self._filtered_send(targets_rad)
             except DeviceResetError as exc:  # it was enabled: command() checked

@@ -39,6 +39,11 @@ class SafetyError(HardwareError, ValueError):
     """A command was refused by the safety layer (wrong shape, torque off, e-stop latched)."""
 
 
+class TorqueOffError(SafetyError):
+    """A command while the torque is off: never enabled, disabled, or switched off under the
+    host by the firmware's watchdog (a host that stopped talking)."""
+
+
 class NotConnectedError(HardwareError):
     """An Arm method that needs the device was called before connect() or after close()."""
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from hardware.arm import _SPEC_DEFAULT, ArmBase, ArmState
-from hardware.errors import DeviceResetError, HardwareError, SafetyError
+from hardware.errors import DeviceResetError, HardwareError, SafetyError, TorqueOffError
 from hardware.joint_calibration import ArmCalibration, nominal_calibration
 from hardware.protocols import get_protocol
 from hardware.protocols.base import DeviceInfo, Link, Protocol, UnitState
@@ -285,7 +285,7 @@ class SerialArm(ArmBase):
         with self._lock:
             self._require_connected()
             if not self._enabled:
-                raise SafetyError("torque is off: call enable() before command_units()")
+                raise TorqueOffError("torque is off: call enable() before command_units()")
             req = np.asarray(units, dtype=float)
             if req.shape != (self.spec.n_actuators,) or not np.all(np.isfinite(req)):
                 raise SafetyError(

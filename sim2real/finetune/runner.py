@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from hardware.errors import HardwareError, NoReplyError, SafetyError, StallError
+from hardware.errors import HardwareError, NoReplyError, StallError, TorqueOffError
 from hardware.spec import ArmSpec
 from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
@@ -585,8 +585,7 @@ def default_anchor(config: dict[str, Any]) -> float:
 def _tripped(exc: BaseException) -> bool:
     """A watchdog's doing: the host's (its e-stop names it) or the firmware's, which switched
     the torque off under a host that stopped talking (the next command is refused for it)."""
-    text = str(exc)
-    return "watchdog" in text or (isinstance(exc, SafetyError) and text.startswith("torque is off"))
+    return "watchdog" in str(exc) or isinstance(exc, TorqueOffError)
 
 
 def _why(exc: BaseException) -> str:

@@ -376,11 +376,11 @@ def test_a_firmware_watchdog_trip_on_a_simulated_arm_is_a_lost_episode(
     """A starved host lets the firmware's watchdog put the torque off mid-episode: the next
     command is refused ("torque is off"); on the mock arm that episode is lost and counted as
     a trip, any other refusal stops the run."""
-    from hardware.errors import SafetyError
+    from hardware.errors import SafetyError, TorqueOffError
     from sim2real.finetune.runner import _Run
 
     run = _Run(_options(tmp_path / "ft"), spec, lambda event: None)
-    run._recover(SafetyError("torque is off: call enable() (or home()) before command()"), None,
+    run._recover(TorqueOffError("torque is off: call enable() (or home()) before command()"), None,
                  time.monotonic())  # fmt: skip
     assert run.watchdog_trips == 1 and run.state["stops"][0]["recovered"] is True
     with pytest.raises(SafetyError, match="e-stop latched"):

@@ -198,7 +198,6 @@ def test_the_source_anchor_keeps_the_actor_near_the_source_under_updates_that_pu
     zip_path, stats = _pick_ddpg_source()
     assert default_anchor(resolve("pick-ddpg", None).config) == DAGGER_ANCHOR_RATIO
     assert default_anchor(resolve("reach-ddpg", None).config) == 0.0
-    rng = np.random.default_rng(5)
     drift = {}
     for ratio in (0.0, 2.0):
         cfg = LearnerConfig(
