@@ -5,6 +5,10 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
+# Compiled bytecode and pytest's rewritten test modules are cached in __pycache__ (an empty value
+# switches Python's PYTHONDONTWRITEBYTECODE off): without the cache each xdist worker and every
+# `sim2real` child process a test starts compiles the project's modules again (~10 s a worker).
+export PYTHONDONTWRITEBYTECODE =
 
 .PHONY: venv demo test test-slow test-all bench lint format firmware firmware-test avr-deps docs docs-serve clean
 
@@ -45,10 +49,10 @@ firmware: $(STAMP) avr-deps
 
 # The tests marked slow (end-to-end demo, adapt, lean installs): CI runs them after `make test`.
 test-slow: $(STAMP) avr-deps
-	$(BIN)/python -m pytest -n 2 --timeout 3600 -q -m slow --durations=15
+	$(BIN)/python -m pytest -n 2 --dist loadgroup --timeout 3600 -q -m slow --durations=15
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --timeout 3600 -q -m ''
+	$(BIN)/python -m pytest -n 2 --dist loadgroup --timeout 3600 -q -m ''
 
 bench: $(STAMP)
 	@for f in bench/*.py; do echo "# $$f"; $(BIN)/python $$f || exit 1; done

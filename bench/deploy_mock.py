@@ -22,6 +22,7 @@ Per policy (a shipped name or a run dir), JSON lines:
     .venv/bin/python bench/deploy_mock.py pick-ppo trace-ppo --episodes 100
     .venv/bin/python bench/deploy_mock.py reach-ppo pick-ppo --timing --episodes 20 --backends ''
     .venv/bin/python bench/deploy_mock.py pick-ppo --timing --view --backends ''   # live view on
+    .venv/bin/python bench/deploy_mock.py pick-ppo-pwm --spec hardware/specs/arm3_mg996r_pwm.yaml
 """
 
 from __future__ import annotations
@@ -188,9 +189,15 @@ def main() -> None:
         default=None,
         help="timing run: the mock arm process's GIL switch interval in s (default 0.005)",
     )
+    parser.add_argument(
+        "--spec",
+        default=None,
+        help="the arm's spec YAML (default: the shipped arm); a policy trained on the bare PWM "
+        "build runs on hardware/specs/arm3_mg996r_pwm.yaml",
+    )
     args = parser.parse_args()
     backends = [b for b in args.backends.split(",") if b]
-    spec = load_spec()
+    spec = load_spec() if args.spec is None else load_spec(args.spec)
     machine = f"{platform.machine()} {os.cpu_count()} cpu"
     for ref in args.policies:
         env: dict[str, float] = {}

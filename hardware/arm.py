@@ -85,6 +85,11 @@ def park_speed_rad_s(spec: ArmSpec) -> float:
     return 0.2 * spec.servo.max_speed_rad_s
 
 
+class _FaultSupersededError(Exception):
+    """A fault stop's hold or park found the arm re-enabled, disabled or e-stopped by another
+    thread since it began: that caller now owns the arm, so the fault stop ends where it is."""
+
+
 @dataclass(frozen=True)
 class ArmState:
     """One reading of the arm, in ``spec.actuator_names`` order (joints, then gripper)."""
@@ -225,6 +230,10 @@ class ArmBase(ABC):
         self._stall = StallMonitor(spec)
         self._in_fault = False  # a fault stop is running: no nested one, no stall checks
         self._keeper_token = 0  # bumped to end the thread that holds the arm after a fault
+        # the keeper token a running fault stop started under: enable(), disable(), estop() or
+        # close() from another thread bump the token, and the fault's hold and park then end
+        # there instead of moving an arm that someone else has taken over
+        self._fault_token: int | None = None
         self._said_unfelt = False
         self._said_unwatched = False
         # (time.monotonic() of the reading that showed it, one-line reason) of the last fault
@@ -517,6 +526,7 @@ class ArmBase(ABC):
                 sent = self.command(self._ramp(goal, max_speed_rad_s, period))
             else:
                 with self._lock:
+                    self._check_fault_owner()
                     if not (self._connected and self._enabled) or self._estop_by_operator:
                         raise SafetyError("the park was interrupted (torque off or an e-stop)")
                     sent = self._filtered_send(self._ramp(goal, max_speed_rad_s, period))
@@ -540,7 +550,10 @@ class ArmBase(ABC):
                 if np.any(improved & felt):  # but moving arm adds up to progress in the window
                     last_progress_t = now
                 best = np.where(improved, err, best)
-                if now - last_progress_t >= window_s and np.all(err[~felt] <= tol):
+                # all within the tolerance: only the unfelt joints' model time is left to wait,
+                # nothing stopped short of the pose
+                short = not np.all(err <= tol)
+                if short and now - last_progress_t >= window_s and np.all(err[~felt] <= tol):
                     if np.all(err <= off_pose):  # stopped moving, short of the pose
                         log.warning(
                             "settled %.3f rad off the pose at %s (arrival tolerance %.4f rad): "
@@ -650,15 +663,24 @@ class ArmBase(ABC):
                     self._estop_reason = reason
                     if self._watchdog is not None:
                         self._watchdog.disarm()
+            with self._lock:
+                self._fault_token = self._keeper_token
             if not self._enabled:
                 outcome = "torque was already off"
             else:
                 outcome = self._hold_then_park(held, state)
+        except _FaultSupersededError:
+            with self._lock:
+                self._in_fault = False
+                self._fault_token = None
+            log.warning("fault stop (%s) ended early: the arm was re-enabled or stopped", reason)
+            return f"{reason}; the hold and park ended early: the arm was taken over"
         except HardwareError as exc:
             outcome = f"could not hold and park ({exc})"
         finally:
             with self._lock:
                 self._in_fault = False
+                self._fault_token = None
         with self._lock:
             if self._estop_by_operator:  # a person's e-stop cut in: theirs is the last word
                 return f"{reason}; stopped by an e-stop ({self._estop_reason}): torque is off"
@@ -682,6 +704,7 @@ class ArmBase(ABC):
         end = time.monotonic() + self.spec.safety.hold_before_disable_s
         while True:
             with self._lock:
+                self._check_fault_owner()
                 if not (self._connected and self._enabled) or self._estop_by_operator:
                     raise SafetyError("the hold was interrupted (torque off or an e-stop)")
                 self._filtered_send(hold)
@@ -710,6 +733,11 @@ class ArmBase(ABC):
             return str(exc)
         self._enabled = False
         return self._fault_stop(str(exc).split("; call enable()")[0], reenable=True)
+
+    def _check_fault_owner(self) -> None:
+        """Inside a fault stop's hold or park (lock held): raise if the arm was taken over."""
+        if self._fault_token is not None and self._fault_token != self._keeper_token:
+            raise _FaultSupersededError
 
     def _start_keeper(self) -> None:
         """Resend the held pose every ``_KEEP_S`` while a fault latch holds the arm up, so no

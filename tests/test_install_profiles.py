@@ -1,6 +1,6 @@
 """The deploy profile installs and runs without the simulator or the learner.
 
-A fresh venv under ``.cache/`` gets ``pip install '.[deploy]'`` and nothing else (pip talks to the
+A fresh venv (one per pytest worker, in its temporary folder) gets ``pip install '.[deploy]'`` and nothing else (pip talks to the
 package index: this test needs network, hence slow). Then: none of torch, mujoco, robosuite, ray or
 stable-baselines3 is importable there; that venv's ``sim2real arm emulate`` serves an emulated
 bus on a pty, its ``sim2real arm ping`` talks to it, and its ``sim2real deploy`` runs a shipped
@@ -22,10 +22,11 @@ from typing import Any
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-VENV = REPO / ".cache" / "lean-deploy-venv"
 FORBIDDEN = ("torch", "mujoco", "robosuite", "ray", "stable_baselines3")
 
-pytestmark = pytest.mark.slow
+# One xdist group (``--dist loadgroup`` in ``make test-slow``): the tests share one lean venv, built
+# once by the worker that runs them; two workers building their own would pay the install twice.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("lean-install")]
 
 
 def _source_copy(dest: Path) -> Path:
@@ -47,9 +48,9 @@ def _source_copy(dest: Path) -> Path:
 def lean_bin(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The venv's bin folder, built from scratch with the deploy extra only."""
     source = _source_copy(tmp_path_factory.mktemp("source"))
-    shutil.rmtree(VENV, ignore_errors=True)
-    subprocess.run([sys.executable, "-m", "venv", str(VENV)], check=True)
-    bin_dir = VENV / "bin"
+    venv = tmp_path_factory.mktemp("lean-deploy-venv")  # this worker's own: never shared
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    bin_dir = venv / "bin"
     pip = [str(bin_dir / "python"), "-m", "pip", "install", "--quiet"]
     subprocess.run([*pip, "--upgrade", "pip"], check=True, timeout=600)
     res = subprocess.run(

@@ -326,6 +326,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
             self._fail()
             self._raise_if_estop_key(exc)
             raise
+        # the learner may take a while before its first step (check_env, a rollout buffer):
+        # hold meanwhile, or the host watchdog (2 s) stops the arm under it
+        self._start_idle_hold()
         info: dict[str, Any] = {"episode": self.episodes, "task": self.io.task}
         if recovered is not None:
             info["recovered_estop"] = recovered
@@ -341,6 +344,7 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         if a.shape != self.action_space.shape:
             raise ConfigError(f"action shape {a.shape} is not {self.action_space.shape}")
         session = self.session
+        self._stop_idle_hold()
         try:
             self._wait_if_paused()
             sent = session.act(a)  # the safety filter, once, inside Arm.command
@@ -449,9 +453,9 @@ class ArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._contract = None
 
     def _start_idle_hold(self) -> None:
-        """Between episodes nobody steps: hold the arm once a period on a thread of its own, so
-        the watchdogs stay fed while the learner logs, saves or evaluates. Stopped (joined)
-        before anything else touches the arm."""
+        """Between episodes, and from a reset to the first step, nobody steps: hold the arm
+        once a period on a thread of its own, so the watchdogs stay fed while the learner logs,
+        saves or evaluates. Stopped (joined) before anything else touches the arm."""
         self._idle_stop.clear()
         self._idle = threading.Thread(target=self._idle_hold, name="armenv-idle", daemon=True)
         self._idle.start()

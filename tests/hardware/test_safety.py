@@ -494,6 +494,36 @@ def test_host_watchdog_parks_a_stalled_loop_and_keeps_it_up(
         arm.command(quick_spec.actuator_home_rad)
 
 
+def test_enable_during_a_fault_stop_takes_the_arm_over(
+    make_emulator: Callable[..., Emulator],
+) -> None:
+    """A fault stop's hold runs on the watchdog's thread; an enable() from the caller (a reset
+    homing the arm) ends it there: no hold or park of the old fault is sent after it, so the
+    fault stop never moves an arm that someone has taken over."""
+    s = load_spec()
+    spec = replace(s, safety=replace(s.safety, hold_before_disable_s=scaled(30.0)))
+    emu = make_emulator(spec, "feetech")
+    with SerialArm(spec, emu.port, protocol="feetech") as arm:
+        arm.home()
+        pose = spec.actuator_home_rad.copy()
+        pose[0] += 0.2
+        arm.move_to(pose)
+        assert emu.wait_until(  # silence: the host watchdog holds `pose` for 30 s
+            lambda: arm.estop_reason is not None and "host watchdog" in arm.estop_reason,
+            timeout_s=scaled(5.0),
+        )
+        assert emu.wait_until(lambda: len(emu.applied("targets")) > 0)
+        held = emu.applied("targets")[-1].requested
+        arm.enable()
+        after = len(emu.applied("targets"))
+        for _ in range(15):  # the caller's own commands, back towards home
+            arm.command(spec.actuator_home_rad)
+            time.sleep(0.02)
+        resent = [e for e in emu.applied("targets")[after:] if e.requested == held]
+        assert len(resent) <= 1, f"the fault's hold was resent {len(resent)} times"
+        assert arm.estop_reason is None and arm.is_enabled
+
+
 _SIGNAL_SCRIPT = textwrap.dedent(
     """
     import sys, time

@@ -101,6 +101,8 @@ def test_check_env_passes_on_the_mock_backend_over_a_pty(spec: ArmSpec, reach_io
         # the safety filter once per step, counted by the filter itself (a period where an
         # estimate went missing holds the arm once instead, and is counted apart)
         env.reset(seed=3)
+        # (the first step ends the holds sent while the caller had the turn after reset)
+        env.step(env.action_space.sample())
         before, blind = env.safety_stats["commands"], env.blind_periods
         for _ in range(10):
             env.step(env.action_space.sample())
@@ -201,7 +203,9 @@ def test_an_ik_policy_reaches_rewards_are_the_training_rewards_and_episodes_trun
     # between episodes the arm is held on a thread of its own (the watchdogs stay fed)
     held = reach_env.safety_stats["commands"]
     _wait(lambda: reach_env.safety_stats["commands"] >= held + 3, "holds between episodes")
-    reach_env.reset(seed=6)  # stops the holder before touching the arm
+    reach_env.reset(seed=6)  # stops the holder before touching the arm ...
+    assert reach_env._idle is not None  # ... and holds again until the learner's first step
+    reach_env.step(np.zeros(3, dtype=np.float32))
     assert reach_env._idle is None
 
 
