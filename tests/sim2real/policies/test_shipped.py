@@ -1,4 +1,5 @@
-"""Shipped policies: listed, loadable by name wherever a run directory is, fit the shipped arm."""
+"""Shipped policies: listed, loadable by name wherever a run directory is, fit a shipped arm (the
+pot build, or the bare PWM build for the ``-pwm`` ones)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from hardware.spec import load_spec
+from hardware.spec import DEFAULT_SPEC_PATH, load_spec
 from sim2real import env_table
 from sim2real.cli.main import main
 from sim2real.deploy.policy_io import policy_io
@@ -23,13 +24,16 @@ PIXEL_REACH = "reach-pixels-distill"
 def test_every_shipped_arm_policy_fits_the_shipped_arm_and_its_task_contract() -> None:
     ships = shipped()
     assert {"reach-ppo", "reach-ddpg"} <= set(ships)
-    spec = load_spec()
+    pots = load_spec()
+    pwm = load_spec(DEFAULT_SPEC_PATH.parent / "arm3_mg996r_pwm.yaml")
     arm = {n: s for n, s in ships.items() if s.task in env_table.DEPLOY_CONTRACTS}
     assert {"reach-ppo", "pick-ppo", "trace-ppo", PIXEL_REACH} <= set(arm)
+    assert {"reach-ppo-pwm", "pick-ppo-pwm"} <= set(arm), "the default hobby build's policies"
     for name, ship in arm.items():
         policy = load_policy(name)  # by name
         if policy.meta.obs_mode == "pixels":  # deployed from camera frames: the test below
             continue
+        spec = pwm if name.endswith("-pwm") else pots  # the name says the build
         policy.meta.check_spec(spec.fingerprint())
         io = policy_io(spec, policy.meta)  # layout checked field by field
         assert io.task == ship.task, name
