@@ -153,10 +153,35 @@ class ObjectTracker(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class TrackerOptions:
+    """How the object trackers measure, as the arm's build needs.
+
+    ``cube_one_camera``: place the cube from one camera's view where the other sees none of it
+    (depth from the printed marker size). Helpful while the arm hides the cube from a camera on
+    the way down; harmful where the cameras alone judge a grasp (a gripper that reads its
+    command, ``pick.held_seen``): a finger over a marker's edge moves such a fit by centimetres,
+    the estimate leaves the tool, and a held cube counts as dropped (``docs/studies/pick.md``,
+    section 6). So it follows the gripper's feedback kind (``for_spec``)."""
+
+    cube_one_camera: bool = True
+
+    @classmethod
+    def for_spec(cls, spec: ArmSpec) -> TrackerOptions:
+        gripper = spec.gripper
+        return cls(cube_one_camera=gripper is None or gripper.feedback == "measured")
+
+
 class _PlateTracker:
     names = ("target",)
 
-    def __init__(self, rig: StereoRig, base_T_left: np.ndarray, layout: MarkerLayout) -> None:
+    def __init__(
+        self,
+        rig: StereoRig,
+        base_T_left: np.ndarray,
+        layout: MarkerLayout,
+        options: TrackerOptions = TrackerOptions(),
+    ) -> None:
         assert layout.target is not None
         marker_id, size = layout.target
         self.tracker = StereoMarkerTracker(
@@ -178,10 +203,18 @@ class _PlateTracker:
 class _CubeTracker:
     names = ("cube",)
 
-    def __init__(self, rig: StereoRig, base_T_left: np.ndarray, layout: MarkerLayout) -> None:
+    def __init__(
+        self,
+        rig: StereoRig,
+        base_T_left: np.ndarray,
+        layout: MarkerLayout,
+        options: TrackerOptions = TrackerOptions(),
+    ) -> None:
         from calibration.cube_tracker import StereoCubeTracker
 
-        self.tracker = StereoCubeTracker(rig, base_T_left, layout.cube)
+        self.tracker = StereoCubeTracker(
+            rig, base_T_left, layout.cube, single_view=options.cube_one_camera
+        )
 
     def observe(self, pair: FramePair) -> dict[str, Track]:
         est = self.tracker.observe(pair.left_bgr, pair.right_bgr, pair.capture_s)
@@ -194,7 +227,13 @@ class _CubeTracker:
 class _SeamTracker:
     names = ("seam_start", "seam_end")
 
-    def __init__(self, rig: StereoRig, base_T_left: np.ndarray, layout: MarkerLayout) -> None:
+    def __init__(
+        self,
+        rig: StereoRig,
+        base_T_left: np.ndarray,
+        layout: MarkerLayout,
+        options: TrackerOptions = TrackerOptions(),
+    ) -> None:
         from calibration.cube_tracker import StereoSeamTracker
 
         self.tracker = StereoSeamTracker(rig, base_T_left, layout.seam)
@@ -210,7 +249,7 @@ class _SeamTracker:
         }
 
 
-TrackerFactory = Callable[[StereoRig, np.ndarray, MarkerLayout], Any]
+TrackerFactory = Callable[[StereoRig, np.ndarray, MarkerLayout, TrackerOptions], Any]
 # object name → the tracker that provides it (one tracker may provide several names)
 OBJECTS: dict[str, TrackerFactory] = {
     "target": _PlateTracker,
@@ -249,6 +288,7 @@ class PairTracker:
         layout: MarkerLayout,
         objects: tuple[str, ...],
         ee_tracker: TrackerConfig,
+        options: TrackerOptions = TrackerOptions(),
     ) -> None:
         self.ee = StereoMarkerTracker(
             rig, base_T_left, layout.ee_id, layout.dictionary, layout.ee_size_m, ee_tracker
@@ -259,7 +299,7 @@ class PairTracker:
             factory = OBJECTS[name]
             if factory not in made:
                 made.add(factory)
-                self.trackers.append(factory(rig, base_T_left, layout))
+                self.trackers.append(factory(rig, base_T_left, layout, options))
         # every name a tracker may report (a seam tracker reports both ends)
         self.names = tuple(n for t in self.trackers for n in t.names)
         self._digest: int | None = None
@@ -481,6 +521,7 @@ class StereoPerception:
             )
         self.worker_kind = worker
         self.objects = objects
+        self.options = TrackerOptions.for_spec(spec)  # what this build's cameras must judge
         self.base_T_left = np.asarray(base_T_left, dtype=float)
         cfg = tracker or TrackerConfig()
         self._ee_cfg = replace(cfg, max_coast_s=min(cfg.max_coast_s, 0.1))
@@ -501,7 +542,9 @@ class StereoPerception:
         self._worker: PerceptionWorker | None = None
 
     def new_tracker(self) -> PairTracker:
-        return PairTracker(self.rig, self.base_T_left, self.layout, self.objects, self._ee_cfg)
+        return PairTracker(
+            self.rig, self.base_T_left, self.layout, self.objects, self._ee_cfg, self.options
+        )
 
     @property
     def last_pair(self) -> FramePair | None:
@@ -550,6 +593,7 @@ class StereoPerception:
                 layout=self.layout,
                 objects=self.objects,
                 ee_tracker=self._ee_cfg,
+                options=self.options,
                 nice=self.WORKER_NICE,
             )
             self._worker = PerceptionProcess(job)

@@ -37,6 +37,7 @@ from sim2real.deploy.perception import (
     PlateMeasurement,
     Snapshot,
     Track,
+    TrackerOptions,
 )
 from sim2real.deploy.render_process import SharedFrames
 from sim2real.envs.contract import ObjectEstimate
@@ -75,10 +76,13 @@ class PerceptionJob:
     layout: MarkerLayout
     objects: tuple[str, ...]
     ee_tracker: TrackerConfig
+    options: TrackerOptions = TrackerOptions()  # noqa: RUF009 - frozen, shared safely
     nice: int = 5
 
     def tracker(self) -> PairTracker:
-        return PairTracker(self.rig, self.base_T_left, self.layout, self.objects, self.ee_tracker)
+        return PairTracker(
+            self.rig, self.base_T_left, self.layout, self.objects, self.ee_tracker, self.options
+        )
 
 
 def _publish(

@@ -19,7 +19,7 @@ from calibration.markers import ArucoMarkerDetector
 from hardware.spec import ArmSpec
 from sim2real.camera_rig import RigSpec
 from sim2real.deploy.frames import FramePair
-from sim2real.deploy.perception import OBJECTS, MarkerLayout
+from sim2real.deploy.perception import OBJECTS, MarkerLayout, TrackerOptions
 from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
 from sim2real.deploy.worlds import SceneObjects
 
@@ -59,8 +59,10 @@ class RigSight:
         pair = FramePair(frames.left_bgr, frames.right_bgr, time.monotonic(), self._seq)
         seen: set[str] = set()
         trackers = {OBJECTS[name] for name in self.objects}
+        options = TrackerOptions.for_spec(self.spec)  # as the deploy's perception measures
         for factory in trackers:
-            seen |= set(factory(self.stereo, self.base_T_left, self.layout).observe(pair))
+            tracker = factory(self.stereo, self.base_T_left, self.layout, options)
+            seen |= set(tracker.observe(pair))
         missing = [name for name in self.objects if name not in seen]
         if not missing:
             return None

@@ -1,0 +1,63 @@
+"""Which views may place the cube follows the arm's build (``TrackerOptions.for_spec``): where a
+gripper reads its command the cameras alone judge a grasp, and a cube placed from one camera's
+view (depth from the printed marker size) is no evidence. Real MuJoCo rendering of the pick
+scene, real ArUco detection on the frames."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibration.perception import TrackerConfig
+from hardware.spec import ArmSpec, load_spec
+from sim2real.deploy.frames import FramePair
+from sim2real.deploy.perception import PairTracker, TrackerOptions
+from sim2real.deploy.placement import RigSight
+
+PWM = load_spec(Path(__file__).parents[3] / "hardware" / "specs" / "arm3_mg996r_pwm.yaml")
+CUBE_M = np.array([0.15, 0.0, 0.0125])
+
+
+@pytest.fixture(scope="module")
+def sight(spec: ArmSpec) -> Iterator[RigSight]:
+    s = RigSight.for_task(spec, "pick", ("cube",))
+    yield s
+    s.close()
+
+
+def _pair(sight: RigSight, blank_right: bool) -> FramePair:
+    sight.scene.place(sight.cameras.data, {"cube": CUBE_M})
+    sight.cameras.pose(sight.spec.actuator_park_rad, None)  # low, out of the cameras' way
+    frames = sight.cameras.read()
+    right = np.zeros_like(frames.right_bgr) if blank_right else frames.right_bgr
+    return FramePair(frames.left_bgr, right, 1.0, 1)
+
+
+def _cube(sight: RigSight, spec: ArmSpec, pair: FramePair) -> np.ndarray | None:
+    tracker = PairTracker(sight.stereo, sight.base_T_left, sight.layout, ("cube",),
+                          TrackerConfig(), TrackerOptions.for_spec(spec))  # fmt: skip
+    track = tracker.observe(pair).tracks.get("cube")
+    return None if track is None else np.asarray(track.estimate.position_m)
+
+
+def test_the_options_follow_the_grippers_feedback(spec: ArmSpec) -> None:
+    assert TrackerOptions.for_spec(spec).cube_one_camera  # measured: the gripper feels a grasp
+    assert not TrackerOptions.for_spec(PWM).cube_one_camera  # commanded: the cameras judge
+
+
+def test_one_camera_places_the_cube_only_where_the_gripper_can_feel(
+    spec: ArmSpec, sight: RigSight
+) -> None:
+    both = _pair(sight, blank_right=False)
+    for build in (spec, PWM):  # both cameras: either build places it, within millimetres
+        seen = _cube(sight, build, both)
+        assert seen is not None and np.linalg.norm(seen - CUBE_M) < 0.005
+    # the right camera sees nothing: the measured build still places the cube from the left
+    # view alone (here 3 cm off, under the table: depth from the printed marker size); the bare
+    # build, whose grasp the cameras judge, does not take that as a sighting
+    one = _pair(sight, blank_right=True)
+    assert _cube(sight, spec, one) is not None
+    assert _cube(sight, PWM, one) is None
