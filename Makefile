@@ -49,10 +49,10 @@ firmware: $(STAMP) avr-deps
 
 # The tests marked slow (end-to-end demo, adapt, lean installs): CI runs them after `make test`.
 test-slow: $(STAMP) avr-deps
-	$(BIN)/python -m pytest -n 2 --dist loadgroup --timeout 3600 -q -m slow --durations=15
+	$(BIN)/python -m pytest -n 2 --timeout 3600 -q -m slow --durations=15
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --dist loadgroup --timeout 3600 -q -m ''
+	$(BIN)/python -m pytest -n 2 --timeout 3600 -q -m ''
 
 bench: $(STAMP)
 	@for f in bench/*.py; do echo "# $$f"; $(BIN)/python $$f || exit 1; done

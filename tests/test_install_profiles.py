@@ -24,9 +24,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 FORBIDDEN = ("torch", "mujoco", "robosuite", "ray", "stable_baselines3")
 
-# One xdist group (``--dist loadgroup`` in ``make test-slow``): the tests share one lean venv, built
-# once by the worker that runs them; two workers building their own would pay the install twice.
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("lean-install")]
+pytestmark = pytest.mark.slow
 
 
 def _source_copy(dest: Path) -> Path:
@@ -44,11 +42,14 @@ def _source_copy(dest: Path) -> Path:
     return dest
 
 
-@pytest.fixture(scope="module")
+# one venv per xdist worker, in its own temporary folder (two workers sharing one folder deleted
+# each other's half-installed pip: CI failed so); session scope, so a worker that runs other
+# modules' tests in between keeps it instead of building it again
+@pytest.fixture(scope="session")
 def lean_bin(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The venv's bin folder, built from scratch with the deploy extra only."""
     source = _source_copy(tmp_path_factory.mktemp("source"))
-    venv = tmp_path_factory.mktemp("lean-deploy-venv")  # this worker's own: never shared
+    venv = tmp_path_factory.mktemp("lean-deploy-venv")
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     bin_dir = venv / "bin"
     pip = [str(bin_dir / "python"), "-m", "pip", "install", "--quiet"]
