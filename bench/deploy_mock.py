@@ -197,7 +197,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     backends = [b for b in args.backends.split(",") if b]
-    spec = load_spec() if args.spec is None else load_spec(args.spec)
+    spec = load_spec(args.spec)
     machine = f"{platform.machine()} {os.cpu_count()} cpu"
     for ref in args.policies:
         env: dict[str, float] = {}

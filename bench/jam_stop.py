@@ -63,7 +63,8 @@ def _emulator(firmware: str, spec: ArmSpec) -> Any:
 
 
 def trial(firmware: str, spec: ArmSpec) -> dict[str, Any]:
-    """One jam: (seconds to the stall or None, held-not-dropped, the warning said)."""
+    """One jam: ``stop_s`` (jam to stall, None if never caught), ``held`` (ended held, not
+    dropped) and ``said`` (what the arm logged)."""
     emu = _emulator(firmware, spec)
     handler = _Said()
     said = handler.said
@@ -89,10 +90,8 @@ def trial(firmware: str, spec: ArmSpec) -> dict[str, Any]:
                         and abs(device[2] - truth[2]) <= stall_error_rad(spec) / 4
                         and np.allclose(truth[:2], spec.park_rad[:2], atol=0.13)
                     )
-                    emu.jam()
                     return {"stop_s": arm.last_fault[0] - t_jam, "held": held, "said": said}
                 time.sleep(max(0.0, PERIOD_S - (time.monotonic() - t0)))
-            emu.jam()
             return {"stop_s": None, "held": None, "said": said}
     finally:
         logging.getLogger("hardware.arm").removeHandler(handler)

@@ -669,10 +669,7 @@ class ArmBase(ABC):
                 outcome = "torque was already off"
             else:
                 outcome = self._hold_then_park(held, state)
-        except _FaultSupersededError:
-            with self._lock:
-                self._in_fault = False
-                self._fault_token = None
+        except _FaultSupersededError:  # (finally clears the fault state)
             log.warning("fault stop (%s) ended early: the arm was re-enabled or stopped", reason)
             return f"{reason}; the hold and park ended early: the arm was taken over"
         except HardwareError as exc:

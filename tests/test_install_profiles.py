@@ -1,11 +1,12 @@
 """The deploy profile installs and runs without the simulator or the learner.
 
-A fresh venv (one per pytest worker, in its temporary folder) gets ``pip install '.[deploy]'`` and nothing else (pip talks to the
-package index: this test needs network, hence slow). Then: none of torch, mujoco, robosuite, ray or
-stable-baselines3 is importable there; that venv's ``sim2real arm emulate`` serves an emulated
-bus on a pty, its ``sim2real arm ping`` talks to it, and its ``sim2real deploy`` runs a shipped
-reach policy (ONNX) on that emulator with forward-kinematics perception for two episodes; a
-command that needs another extra says which one in one line.
+A fresh venv (one per pytest worker, in its temporary folder) gets ``pip install '.[deploy]'``
+and nothing else (pip talks to the package index: this test needs network, hence slow). Then:
+none of torch, mujoco, robosuite, ray or stable-baselines3 is importable there; that venv's
+``sim2real arm emulate`` serves an emulated bus on a pty, its ``sim2real arm ping`` talks to it,
+and its ``sim2real deploy`` runs a shipped reach policy (ONNX) on that emulator with
+forward-kinematics perception for two episodes; a command that needs another extra says which
+one in one line.
 """
 
 from __future__ import annotations

@@ -512,7 +512,7 @@ def test_enable_during_a_fault_stop_takes_the_arm_over(
             lambda: arm.estop_reason is not None and "host watchdog" in arm.estop_reason,
             timeout_s=scaled(5.0),
         )
-        assert emu.wait_until(lambda: len(emu.applied("targets")) > 0)
+        assert emu.wait_until(lambda: len(emu.applied("targets")) > 0, timeout_s=scaled(2.0))
         held = emu.applied("targets")[-1].requested
         arm.enable()
         after = len(emu.applied("targets"))

@@ -6,18 +6,17 @@ scene, real ArUco detection on the frames."""
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from calibration.perception import TrackerConfig
-from hardware.spec import ArmSpec, load_spec
+from hardware.spec import PWM_SPEC_PATH, ArmSpec, load_spec
 from sim2real.deploy.frames import FramePair
 from sim2real.deploy.perception import PairTracker, TrackerOptions
 from sim2real.deploy.placement import RigSight
 
-PWM = load_spec(Path(__file__).parents[3] / "hardware" / "specs" / "arm3_mg996r_pwm.yaml")
+PWM = load_spec(PWM_SPEC_PATH)
 CUBE_M = np.array([0.15, 0.0, 0.0125])
 
 

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from hardware.spec import DEFAULT_SPEC_PATH, load_spec
+from hardware.spec import PWM_SPEC_PATH, load_spec
 from sim2real import env_table
 from sim2real.cli.main import main
 from sim2real.deploy.policy_io import policy_io
@@ -25,7 +25,7 @@ def test_every_shipped_arm_policy_fits_the_shipped_arm_and_its_task_contract() -
     ships = shipped()
     assert {"reach-ppo", "reach-ddpg"} <= set(ships)
     pots = load_spec()
-    pwm = load_spec(DEFAULT_SPEC_PATH.parent / "arm3_mg996r_pwm.yaml")
+    pwm = load_spec(PWM_SPEC_PATH)
     arm = {n: s for n, s in ships.items() if s.task in env_table.DEPLOY_CONTRACTS}
     assert {"reach-ppo", "pick-ppo", "trace-ppo", PIXEL_REACH} <= set(arm)
     assert {"reach-ppo-pwm", "pick-ppo-pwm"} <= set(arm), "the default hobby build's policies"
