@@ -611,6 +611,14 @@ class StereoPerception:
         qs = np.array([q for _, q in hist])
         return np.array([np.interp(t_s, times, qs[:, j]) for j in range(qs.shape[1])])
 
+    def _tool_at(self, t_s: float) -> np.ndarray | None:
+        """The tool's estimate at ``t_s`` (an object's capture time): forward kinematics of the
+        readings then, with the current plate correction (None: no reading from around then)."""
+        q = self._q_at(t_s)
+        if q is None:
+            return None
+        return np.asarray(self.spec.forward_kinematics(q) + self._bias, dtype=float)
+
     def _plate_error(self, plate_m: np.ndarray, capture_s: float) -> np.ndarray | None:
         """The camera measures the tool late but without the spec's geometry errors; the joint
         readings are fresh. The plate's tool against forward kinematics of the readings at the
@@ -715,7 +723,13 @@ class StereoPerception:
         ee = self.spec.forward_kinematics(q_now) + self._bias
         if not self.ee_seen:
             self.detections["fk_fallback"] += 1
-        objects = {name: track.at(command_s) for name, track in snap.tracks.items()}
+        objects = {
+            name: replace(
+                track.at(command_s),
+                tool_then_m=self._tool_at(track.capture_s - track.estimate.blind_s),
+            )
+            for name, track in snap.tracks.items()
+        }
         tool_blind_s = max(0.0, max(capture_s, snap.capture_s) - self._plate_seen_s)
         return Percept(ee, objects, tool_blind_s)
 

@@ -687,6 +687,7 @@ def _estimate_view(
         truth=False,
         blind_s={n: percept.blind_s(n) for n in contract.objects},
         commanded_rad=sent,
+        tool_then_m={n: t for n in contract.objects if (t := percept.tool_then(n)) is not None},
     )
 
 

@@ -239,8 +239,9 @@ class PickContract(DeployContract):
         self._holding_now = False  # the fingers hold the cube (``judge_holding``), last period
         self._judged_holding = False  # the same, on ``score``'s views
         self._carried = False  # the last cube estimate was the tool (``cube_estimate``)
-        # the servo readings and targets of ``observe_arm``, and the last percept's tool, cube
-        # estimate (as tracked) and blind time: ``judge_holding``'s inputs
+        # the servo readings and targets of ``observe_arm``, and the last percept's tool (when
+        # the cube was seen: ``Percept.tool_then``), cube estimate (as tracked) and blind time:
+        # ``judge_holding``'s inputs
         self._arm: tuple[np.ndarray, np.ndarray] | None = None
         self._percept: tuple[np.ndarray, np.ndarray, float] | None = None
         self._blind_periods = 0
@@ -265,11 +266,14 @@ class PickContract(DeployContract):
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
         tool, cube = need(percept, "cube")
         blind = percept.blind_s("cube")
-        self._percept = (tool, cube, blind)
+        # the cube is judged against the tool where it was when the cameras saw the cube
+        tool_then = percept.tool_then("cube")
+        tool_then = tool if tool_then is None else tool_then
+        self._percept = (tool_then, cube, blind)
         if self._arm is not None:
             reading, commanded = self._arm
             self._holding_now = judge_holding(
-                self.spec, commanded, reading, tool, cube, blind, self._holding_now
+                self.spec, commanded, reading, tool_then, cube, blind, self._holding_now
             )
         cube, self._carried = cube_estimate(cube, tool, blind, self._holding_now, self._carried)
         self._periods += 1
@@ -327,8 +331,9 @@ class PickContract(DeployContract):
             self._judged_holding = False
             return False
         self._judged_holding = judge_holding(
-            self.spec, view.commanded_rad, view.actuators_rad, view.tool_m,
-            view.objects["cube"], view.blind_s.get("cube", 0.0), self._judged_holding,
+            self.spec, view.commanded_rad, view.actuators_rad,
+            view.tool_then_m.get("cube", view.tool_m), view.objects["cube"],
+            view.blind_s.get("cube", 0.0), self._judged_holding,
         )  # fmt: skip
         return self._judged_holding
 

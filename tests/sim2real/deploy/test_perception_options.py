@@ -5,15 +5,17 @@ scene, real ArUco detection on the frames."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
 from calibration.perception import TrackerConfig
+from hardware.arm import ArmState
 from hardware.spec import PWM_SPEC_PATH, ArmSpec, load_spec
 from sim2real.deploy.frames import FramePair
-from sim2real.deploy.perception import PairTracker, TrackerOptions
+from sim2real.deploy.perception import PairTracker, StereoPerception, TrackerOptions
 from sim2real.deploy.placement import RigSight
 
 PWM = load_spec(PWM_SPEC_PATH)
@@ -60,3 +62,52 @@ def test_one_camera_places_the_cube_only_where_the_gripper_can_feel(
     one = _pair(sight, blank_right=True)
     assert _cube(sight, spec, one) is not None
     assert _cube(sight, PWM, one) is None
+
+
+class _StillPair:
+    """A frame source that serves one captured pair, as a camera that saw it at ``capture_s``."""
+
+    timeout_s = 1e9
+
+    def __init__(self, pair: FramePair) -> None:
+        self.pair = pair
+
+    def start(self) -> None:
+        """Nothing to start."""
+
+    def latest(self) -> FramePair:
+        return self.pair
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+def test_the_cube_comes_with_the_tool_where_it_was_when_the_cube_was_seen(
+    sight: RigSight,
+) -> None:
+    """Cameras see the cube late and the tool comes from this period's readings: the percept
+    pairs the cube with forward kinematics of the readings at the cube's capture time, which
+    is what a grasp judged from the cameras compares (``pick.held_seen``)."""
+    pair = _pair(sight, blank_right=False)
+    capture_s = pair.capture_s
+    perception = StereoPerception(_StillPair(pair), sight.stereo, sight.base_T_left, PWM,
+                                  ("cube",), sight.layout, worker="thread")  # fmt: skip
+    q_then = np.array(PWM.actuator_park_rad, dtype=float)
+    q_now = q_then + np.array([0.3, -0.2, 0.25, 0.0])  # moved on since the capture
+    perception.start()
+    try:
+        deadline = time.monotonic() + 60.0  # the worker measures the pair in its own time
+        while "cube" not in perception.perceive(ArmState(q_then, 0.0), capture_s).objects:
+            assert time.monotonic() < deadline, "the worker never placed the cube"
+            time.sleep(0.01)
+        later = perception.perceive(ArmState(q_now, 0.0), capture_s + 0.15)
+    finally:
+        perception.close()
+    n = PWM.n_joints
+    cube = later.objects["cube"]
+    assert cube.blind_s == 0.0 and np.linalg.norm(cube.position_m - CUBE_M) < 0.005
+    assert later.tool_m is not None and cube.tool_then_m is not None
+    moved = PWM.forward_kinematics(q_now[:n]) - PWM.forward_kinematics(q_then[:n])
+    assert np.linalg.norm(moved) > 0.03
+    np.testing.assert_allclose(later.tool_m - cube.tool_then_m, moved, atol=1e-9)
+    np.testing.assert_allclose(later.tool_then("cube"), cube.tool_then_m)
