@@ -274,6 +274,19 @@ class ArmBase(ABC):
         """The targets the device holds right now (the per-step clamp starts from here)."""
         return self.safety.clip_to_limits(state.positions_rad)
 
+    # ---- time -------------------------------------------------------------------------------
+    @property
+    def lockstep_period_s(self) -> float | None:
+        """The time one command advances this arm's world where that time moves only with
+        commands (a lockstep simulator: the world waits for the host, so nothing need sleep
+        between commands, and a slow host changes no outcome); None where the arm moves with
+        the wall clock, as every real arm does."""
+        return None
+
+    def now_s(self) -> float:
+        """The arm's clock: ``time.monotonic()``, or a lockstep simulator's own time."""
+        return time.monotonic()
+
     # ---- lifecycle ------------------------------------------------------------------------
     @property
     def is_connected(self) -> bool:
@@ -514,7 +527,11 @@ class ArmBase(ABC):
         model_s = arrival_time_s(
             spec, start_state.positions_rad, target, tol, command_speed_rad_s=max_speed_rad_s
         )
-        start = time.monotonic()
+        # a lockstep world: each command advances it one of its periods, judged on its clock
+        lockstep_s = self.lockstep_period_s
+        if lockstep_s is not None:
+            period = lockstep_s
+        start = self.now_s()
         deadline = start + timeout_s
         next_t = start
         prev_sent: np.ndarray | None = None
@@ -531,7 +548,7 @@ class ArmBase(ABC):
                         raise SafetyError("the park was interrupted (torque off or an e-stop)")
                     sent = self._filtered_send(self._ramp(goal, max_speed_rad_s, period))
             state = self._walk_read(fault)
-            now = time.monotonic()
+            now = self.now_s()
             err = np.where(held_mask | ~judged_mask, 0.0, np.abs(state.positions_rad - target))
             worst = int(np.argmax(err))
             name = spec.actuator_names[worst]
@@ -575,7 +592,8 @@ class ArmBase(ABC):
                     f"{err[worst]:.3f} rad away (tolerance {tol:.4f} rad)"
                 )
             next_t += period
-            time.sleep(max(0.0, next_t - time.monotonic()))
+            if lockstep_s is None:
+                time.sleep(max(0.0, next_t - time.monotonic()))
 
     def _ramp(self, goal: np.ndarray, speed_rad_s: float | None, period_s: float) -> np.ndarray:
         """The next command towards ``goal``: no further than ``speed_rad_s`` per period."""

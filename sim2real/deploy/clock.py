@@ -27,8 +27,11 @@ class PeriodClock:
     """Paces one control loop and keeps its timing: every period's length (start to start),
     how late each wake-up came after its deadline, and the overruns."""
 
-    def __init__(self, rate_hz: float, overrun_warn_fraction: float) -> None:
+    def __init__(self, rate_hz: float, overrun_warn_fraction: float, sleeps: bool = True) -> None:
         self.period_s = 1.0 / rate_hz
+        # False: the world waits for the loop (a lockstep simulator), so a period starts as
+        # soon as the last one's work is done; its timing is kept, and means nothing
+        self.sleeps = sleeps
         self.overrun_warn_fraction = overrun_warn_fraction
         self.periods_s: list[float] = []
         # per period after a sleep: the wake-up after the deadline (the kernel's wake-up plus
@@ -71,6 +74,9 @@ class PeriodClock:
     def sleep(self) -> None:
         """Sleep to the next period's start on the grid; a late period starts the next at once."""
         self._next_t += self.period_s
+        if not self.sleeps:
+            self._next_t, self._slept = time.perf_counter(), False
+            return
         self._slept = self._next_t - time.perf_counter() > 0
         if self._slept:
             sleep_until(self._next_t)

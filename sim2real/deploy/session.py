@@ -190,7 +190,12 @@ class ControlSession:
         self.log = log  # None: no rows kept (a learner records its own transitions)
         self.obs_keys = obs_keys  # dict-observation policies (HER): their key order
         self.pipelined = pipelined  # SerialArm.set_pipelined in an episode's periods
-        self.clock = PeriodClock(config.rate_hz, config.overrun_warn_fraction)
+        # a lockstep world waits for the loop: no period sleeps on the wall clock
+        self.lockstep = arm.lockstep_period_s is not None
+        self._lockstep_wait_s = 0.0  # the lockstep world's time spent waiting for objects
+        self.clock = PeriodClock(
+            config.rate_hz, config.overrun_warn_fraction, sleeps=not self.lockstep
+        )
         self.sections_s: dict[str, list[float]] = {s: [] for s in SECTIONS}
         self._n_obs_joints = self.builder.fields[0].size
         self._has_goal_delta = "target_goal_delta" in {f.name for f in self.builder.fields}
@@ -318,7 +323,8 @@ class ControlSession:
     def judge_last(self) -> str | None:
         """After an episode's last period: give its command one whole period to act, then judge
         it on a view taken then."""
-        sleep_until(self._t_sent + self.clock.period_s)
+        if not self.lockstep:  # in lockstep the command acted for a whole period when sent
+            sleep_until(self._t_sent + self.clock.period_s)
         if self.sent_rad is None:
             return self.reason
         contract = self._require_contract()
@@ -641,12 +647,20 @@ class ControlSession:
         park_after_s = 0.5 * timeout_s
         if self.world.places_objects:
             park_after_s = min(park_after_s, self.LOOK_FROM_PARK_S)
-        start = time.monotonic()
+        # a lockstep world moves one period per hold (and not at all without one): its objects
+        # stand still for as many periods as the wall-clock wait would take, without the wait
+        lockstep_s = self.arm.lockstep_period_s
+        start = time.monotonic() if lockstep_s is None else self._lockstep_wait_s
         parked = self.config.dry_run
         while True:
             self.hold()
-            now = time.monotonic()
-            percept = self.perception.perceive(self.arm.read_state(), now)
+            wall = time.monotonic()
+            percept = self.perception.perceive(self.arm.read_state(), wall)
+            if lockstep_s is None:
+                now = wall
+            else:
+                self._lockstep_wait_s += lockstep_s
+                now = self._lockstep_wait_s
             waiting = contract.ready(percept, now)
             if waiting is None and percept.tool_m is not None:
                 if parked and not self.config.dry_run:
@@ -661,7 +675,8 @@ class ControlSession:
             if not parked and now - start > park_after_s:
                 parked = True
                 self.arm.park()
-            time.sleep(0.02)
+            if lockstep_s is None:
+                time.sleep(0.02)
 
     def _require_contract(self) -> DeployContract:
         if self.contract is None:

@@ -3,7 +3,8 @@
 It derives from ``hardware.arm.ArmBase``, so the same safety filter, e-stop and lifecycle sit in
 front of it as in front of a real servo bus, and it passes the same contract test suite. Servo
 behaviour between the command and the horn comes from the same ``ServoActuation`` layer the envs
-use. Time: ``clock="lockstep"`` advances one control period per command (fast, deterministic);
+use. Time: ``clock="lockstep"`` advances one control period per command (fast, deterministic:
+``lockstep_period_s`` and ``now_s`` tell the loop and ``move_to`` to run on this time, unslept);
 ``clock="realtime"`` steps physics to catch up with the wall clock on every call, as a real arm
 keeps moving while the host thinks.
 
@@ -180,6 +181,15 @@ class SimArm(ArmBase):
         sent = np.rint(self._targets / res) * res if res > 0 else self._targets.copy()
         self.received.append(sent.copy())
         return sent
+
+    @property
+    def lockstep_period_s(self) -> float | None:
+        return self.frame_skip * self.model.opt.timestep if self.clock == "lockstep" else None
+
+    def now_s(self) -> float:
+        if self.clock == "lockstep":
+            return float(self.data.time)
+        return super().now_s()
 
     def move_to(self, target_rad: np.ndarray, **kwargs: Any) -> ArmState:
         """``ArmBase.move_to`` (home, park: no policy runs) with the fingers kept out of the

@@ -81,3 +81,20 @@ def test_sleep_until_never_wakes_early() -> None:
     deadline = time.perf_counter() + 0.005
     sleep_until(deadline)
     assert time.perf_counter() >= deadline
+
+
+def test_a_clock_for_a_lockstep_world_never_sleeps(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A lockstep simulator waits for the loop: the loop starts each period as soon as the
+    last one's work is done, and no late period is counted for it."""
+    from sim2real.deploy import clock as clock_mod
+
+    virtual = _VirtualTime()
+    monkeypatch.setattr(clock_mod, "time", virtual)
+    clock = PeriodClock(rate_hz=1.0, overrun_warn_fraction=0.2, sleeps=False)
+    clock.start()
+    t0 = virtual.now
+    for _ in range(5):
+        clock.tick()
+        clock.sleep()
+    assert virtual.now - t0 < 0.01  # paced, five 1 s periods
+    assert clock.overruns == 0 and clock.wake_late_s == []
