@@ -12,6 +12,7 @@ import itertools
 import json
 import os
 import random
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
@@ -311,16 +312,44 @@ def _move_wipers_quietly(emu: AvrEmulator, counts: dict[str, int]) -> None:
     assert emu.sync(timeout_s=scaled(10.0))
 
 
-@pytest.mark.parametrize(("seed", "build"), [(1, "pwm"), (2, "pwm"), (3, "pots")])
+# (traffic seed, build): the replays of ``test_avr_binary_matches_the_python_model``
+REPLAYS = ((1, "pwm"), (2, "pwm"), (3, "pots"))
+
+
 def test_avr_binary_matches_the_python_model(
-    spec: ArmSpec, make_avr: Callable[..., AvrEmulator], seed: int, build: str
+    spec: ArmSpec, make_avr: Callable[..., AvrEmulator]
 ) -> None:
     """Byte for byte, in both builds: bare PWM servos (readings commanded: the output pulses)
     and every potentiometer wired (readings measured). In the pot build the test holds each
     wiper at a voltage of its own and moves two of them half-way, each change in a quiet
-    moment of the stream, so the chip's ADC and the model read the same counts."""
-    build_spec = load_spec(PWM_SPEC_PATH) if build == "pwm" else spec
-    emu = make_avr(build_spec)
+    moment of the stream, so the chip's ADC and the model read the same counts.
+
+    The replays run side by side, a chip each: each is ~16 s of paced traffic and a few per
+    cent of a core, and no reply depends on the wall clock (``_traffic``)."""
+    chips = {(seed, build): make_avr(_build_spec(spec, build)) for seed, build in REPLAYS}
+    failures: dict[tuple[int, str], BaseException] = {}
+
+    def replay(case: tuple[int, str]) -> None:
+        try:
+            _replay_matches_the_model(spec, chips[case], *case)
+        except BaseException as exc:  # reported below, with its replay
+            failures[case] = exc
+
+    workers = [threading.Thread(target=replay, args=(case,)) for case in REPLAYS]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    for (seed, build), exc in failures.items():
+        raise AssertionError(f"replay seed {seed}, {build} build: {exc}") from exc
+
+
+def _build_spec(spec: ArmSpec, build: str) -> ArmSpec:
+    return load_spec(PWM_SPEC_PATH) if build == "pwm" else spec
+
+
+def _replay_matches_the_model(spec: ArmSpec, emu: AvrEmulator, seed: int, build: str) -> None:
+    build_spec = emu.spec
     names = build_spec.actuator_names
     pinned = {name: 300 + 90 * i for i, name in enumerate(names)} if build == "pots" else {}
     for name, counts in pinned.items():
