@@ -190,8 +190,8 @@ def main() -> None:
     parser.add_argument("--seed-offset", type=int, default=0)
     parser.add_argument("--dr", default="none", help="the env's DR preset (the sim has none)")
     parser.add_argument("--rate", type=float, default=100.0,
-                        help="the loop's wall rate (lockstep: physics is one control period "
-                        "per command whatever the rate)")  # fmt: skip
+                        help="the loop's rate (lockstep: one control period of physics per "
+                        "command whatever the rate, and no waiting between them)")  # fmt: skip
     parser.add_argument("--no-drop-stop", action="store_true")
     parser.add_argument("--env-start", action="store_true")
     parser.add_argument("--clock", default="lockstep", choices=("lockstep", "realtime"))

@@ -462,7 +462,9 @@ class ArmBase(ABC):
         judged: np.ndarray | None = None,
     ) -> ArmState:
         """Walk to ``target_rad`` through the per-step clamp at ``rate_hz`` (and no faster than
-        ``max_speed_rad_s`` where given); return the state once every actuator has arrived.
+        ``max_speed_rad_s`` where given); return the state once every actuator has arrived. A
+        lockstep simulator (``lockstep_period_s``) takes one command per its period instead,
+        unslept, and the walk's times are its own.
         ``judged`` (a boolean mask over the actuators, default all) leaves some out of the
         arrival check: a gripper closed on an object is commanded shut and stops at the object,
         by design.

@@ -30,7 +30,8 @@ class PeriodClock:
     def __init__(self, rate_hz: float, overrun_warn_fraction: float, sleeps: bool = True) -> None:
         self.period_s = 1.0 / rate_hz
         # False: the world waits for the loop (a lockstep simulator), so a period starts as
-        # soon as the last one's work is done; its timing is kept, and means nothing
+        # soon as the last one's work is done: periods are still measured (an overrun is work
+        # longer than a period), no wake-up is late
         self.sleeps = sleeps
         self.overrun_warn_fraction = overrun_warn_fraction
         self.periods_s: list[float] = []

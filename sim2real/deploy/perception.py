@@ -612,8 +612,9 @@ class StereoPerception:
         return np.array([np.interp(t_s, times, qs[:, j]) for j in range(qs.shape[1])])
 
     def _tool_at(self, t_s: float) -> np.ndarray | None:
-        """The tool's estimate at ``t_s`` (an object's capture time): forward kinematics of the
-        readings then, with the current plate correction (None: no reading from around then)."""
+        """The tool's estimate at ``t_s`` (the capture time of an object's newest frame): forward
+        kinematics of the readings then, with the current plate correction (None: no reading
+        from around then)."""
         q = self._q_at(t_s)
         if q is None:
             return None
@@ -726,7 +727,7 @@ class StereoPerception:
         objects = {
             name: replace(
                 track.at(command_s),
-                tool_then_m=self._tool_at(track.capture_s - track.estimate.blind_s),
+                tool_then_m=self._tool_at(track.capture_s),
             )
             for name, track in snap.tracks.items()
         }

@@ -31,10 +31,12 @@ from hardware.spec import ArmSpec
 class ObjectEstimate:
     """One tracked object in the base frame; ``blind_s`` is the time since it was last measured
     (0 when measured this period: the tracker coasts on its prediction meanwhile).
-    ``tool_then_m``: the tool's estimate when the object was last measured (its frame's capture
-    time), where the perception keeps the joint history for it. Cameras see the object a frame
-    or three late while the tool comes from this period's readings: during a 0.15 m/s lift the
-    two drift 2 cm apart, so whatever compares them (``pick.held_seen``) compares these."""
+    ``tool_then_m``: the tool's estimate at the capture time of the newest frame the estimate
+    comes from (where the perception keeps the joint history for it): a hidden object's
+    estimate is its last sighting, compared, as the env's delay line pairs them, with the tool
+    of the newest frame. Cameras see the object a frame or three late while the tool comes from
+    this period's readings: during a 0.15 m/s lift the two drift 2 cm apart, so whatever
+    compares them (``pick.held_seen``) compares these."""
 
     position_m: np.ndarray  # (3,)
     blind_s: float = 0.0
@@ -61,8 +63,8 @@ class Percept:
         return float("inf") if est is None else est.blind_s
 
     def tool_then(self, name: str) -> np.ndarray | None:
-        """The tool when ``name`` was last measured (``ObjectEstimate.tool_then_m``); the
-        period's tool where the perception has no history (truth, forward kinematics)."""
+        """The tool at the capture time of ``name``'s estimate (``ObjectEstimate.tool_then_m``);
+        the period's tool where the perception has no history (truth, forward kinematics)."""
         est = self.objects.get(name)
         if est is not None and est.tool_then_m is not None:
             return est.tool_then_m

@@ -239,9 +239,9 @@ class PickContract(DeployContract):
         self._holding_now = False  # the fingers hold the cube (``judge_holding``), last period
         self._judged_holding = False  # the same, on ``score``'s views
         self._carried = False  # the last cube estimate was the tool (``cube_estimate``)
-        # the servo readings and targets of ``observe_arm``, and the last percept's tool (when
-        # the cube was seen: ``Percept.tool_then``), cube estimate (as tracked) and blind time:
-        # ``judge_holding``'s inputs
+        # the servo readings and targets of ``observe_arm``, and the last percept's tool (at the
+        # capture of the cube's frame: ``Percept.tool_then``), cube estimate (as tracked) and
+        # blind time: ``judge_holding``'s inputs
         self._arm: tuple[np.ndarray, np.ndarray] | None = None
         self._percept: tuple[np.ndarray, np.ndarray, float] | None = None
         self._blind_periods = 0
@@ -266,7 +266,7 @@ class PickContract(DeployContract):
     def readings(self, percept: Percept, step: int) -> dict[str, np.ndarray]:
         tool, cube = need(percept, "cube")
         blind = percept.blind_s("cube")
-        # the cube is judged against the tool where it was when the cameras saw the cube
+        # the cube is judged against the tool at the capture time of the cube's frame
         tool_then = percept.tool_then("cube")
         tool_then = tool if tool_then is None else tool_then
         self._percept = (tool_then, cube, blind)

@@ -335,13 +335,17 @@ def test_avr_binary_matches_the_python_model(
         except BaseException as exc:  # reported below, with its replay
             failures[case] = exc
 
-    workers = [threading.Thread(target=replay, args=(case,)) for case in REPLAYS]
+    workers = [threading.Thread(target=replay, args=(case,), daemon=True) for case in REPLAYS]
     for w in workers:
         w.start()
     for w in workers:
-        w.join()
-    for (seed, build), exc in failures.items():
-        raise AssertionError(f"replay seed {seed}, {build} build: {exc}") from exc
+        w.join(timeout=scaled(300.0))  # only turns a hang into a failure
+    hung = [case for case, w in zip(REPLAYS, workers, strict=True) if w.is_alive()]
+    assert not hung, f"replays that never finished: {hung}"
+    assert not failures, "; ".join(
+        f"replay seed {seed}, {build} build: {type(exc).__name__}: {exc}"
+        for (seed, build), exc in failures.items()
+    )
 
 
 def _build_spec(spec: ArmSpec, build: str) -> ArmSpec:
@@ -363,7 +367,7 @@ def _replay_matches_the_model(spec: ArmSpec, emu: AvrEmulator, seed: int, build:
             time.sleep(pause)
             port.write(data)
             port.read(4096)  # keep the line drained
-        emu.sync()
+        assert emu.sync(timeout_s=scaled(10.0)), "the chip did not catch up with the bytes sent"
         time.sleep(0.05)
         port.read(4096)
     traffic = list(emu.traffic)
@@ -490,15 +494,19 @@ def test_slew_and_watchdog_run_in_chip_time(
         assert emu.wait_until(lambda: len(emu.off_log) == spec.n_actuators, timeout_s=5.0)
     replies = [t for k, t, d in emu.traffic if k == "TX"]
     t_cmd = replies[-1]  # the STATE reply: the target was applied just before it
+    # the harness stamps the reply's bytes as it collects them, anywhere within their time on the
+    # wire (later on a loaded machine, where the chip's loop collects bigger chunks)
+    wire_s = (8 + 3 + 4 * spec.n_actuators) * 10 / 115200
     ch0 = [(t, w) for t, ch, w in emu.pulse_log if ch == 0 and t > t_cmd]
     reached = next(t for t, w in ch0 if round(w / 1000) == target[0])
     slew_s = 150 / limits.slew_us_per_s[0]  # 31.4 ms at 4,774 us/s
-    assert slew_s - 0.002 <= reached - t_cmd <= slew_s + 0.025  # + one 20 ms frame + a pulse
+    # + one 20 ms frame + a pulse
+    assert slew_s - 0.002 - wire_s <= reached - t_cmd <= slew_s + 0.025
     # 150 us in steps no bigger than one 20 ms frame's worth of slew
     widths = [w / 1000 for _, w in ch0 if w / 1000 <= target[0] + 1]
     assert max(b - a for a, b in itertools.pairwise(widths)) <= (limits.slew_us_per_s[0] * 0.021)
     off_s = min(t for t, _ in emu.off_log) - t_cmd
     wd_s = (limits.watchdog_ms + limits.hold_ms) / 1000  # 750 ms
-    assert wd_s - 0.002 <= off_s <= wd_s + 0.025  # stopped between two frames
+    assert wd_s - 0.002 - wire_s <= off_s <= wd_s + 0.025  # stopped between two frames
     # while holding, the pulses stayed at the output: no motion after the hold
     assert all(round(w / 1000) == target[0] for t, w in ch0 if t > reached)

@@ -85,7 +85,7 @@ def test_sleep_until_never_wakes_early() -> None:
 
 def test_a_clock_for_a_lockstep_world_never_sleeps(monkeypatch: pytest.MonkeyPatch) -> None:
     """A lockstep simulator waits for the loop: the loop starts each period as soon as the
-    last one's work is done, and no late period is counted for it."""
+    last one's work is done, and no wake-up is counted late."""
     from sim2real.deploy import clock as clock_mod
 
     virtual = _VirtualTime()

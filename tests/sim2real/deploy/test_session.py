@@ -122,8 +122,6 @@ def test_objects_the_arm_hides_are_looked_for_from_park_without_waiting_half_the
     (at home the arm may hide one), the arm parks, and homes again once they are seen; it does
     not wait out half of a start timeout sized for a slow machine. The perception here sees the
     target only from park."""
-    import time
-
     from sim2real.envs.contract import Percept
 
     monkeypatch.setattr(ControlSession, "LOOK_FROM_PARK_S", 0.2)
@@ -132,8 +130,8 @@ def test_objects_the_arm_hides_are_looked_for_from_park_without_waiting_half_the
         parked_at: list[float] = []
         real_park, real_perceive = s.arm.park, s.perception.perceive
 
-        def park() -> Any:
-            parked_at.append(time.monotonic())
+        def park() -> Any:  # the lockstep simulator's time: the wait does not sleep
+            parked_at.append(s.arm.now_s())
             return real_park()
 
         def perceive(state: Any, command_s: float) -> Percept:
@@ -142,7 +140,7 @@ def test_objects_the_arm_hides_are_looked_for_from_park_without_waiting_half_the
 
         monkeypatch.setattr(s.arm, "park", park)
         monkeypatch.setattr(s.perception, "perceive", perceive)
-        start = time.monotonic()
+        start = s.arm.now_s()
         s.begin_episode(0, np.random.default_rng(0))
         assert len(parked_at) == 1 and parked_at[0] - start < 0.5 * timeout_s
         home = spec.actuator_home_rad  # home again before the episode's first period
