@@ -74,10 +74,10 @@ class PeriodClock:
 
     def sleep(self) -> None:
         """Sleep to the next period's start on the grid; a late period starts the next at once."""
-        self._next_t += self.period_s
         if not self.sleeps:
             self._next_t, self._slept = time.perf_counter(), False
             return
+        self._next_t += self.period_s
         self._slept = self._next_t - time.perf_counter() > 0
         if self._slept:
             sleep_until(self._next_t)

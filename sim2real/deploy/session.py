@@ -190,11 +190,12 @@ class ControlSession:
         self.log = log  # None: no rows kept (a learner records its own transitions)
         self.obs_keys = obs_keys  # dict-observation policies (HER): their key order
         self.pipelined = pipelined  # SerialArm.set_pipelined in an episode's periods
-        # a lockstep world waits for the loop: no period sleeps on the wall clock
-        self.lockstep = arm.lockstep_period_s is not None
+        # a lockstep world waits for the loop (its period; None: the arm moves with the wall
+        # clock): nothing here sleeps for it
+        self.lockstep_s = arm.lockstep_period_s
         self._lockstep_wait_s = 0.0  # the lockstep world's time spent waiting for objects
         self.clock = PeriodClock(
-            config.rate_hz, config.overrun_warn_fraction, sleeps=not self.lockstep
+            config.rate_hz, config.overrun_warn_fraction, sleeps=self.lockstep_s is None
         )
         self.sections_s: dict[str, list[float]] = {s: [] for s in SECTIONS}
         self._n_obs_joints = self.builder.fields[0].size
@@ -323,7 +324,7 @@ class ControlSession:
     def judge_last(self) -> str | None:
         """After an episode's last period: give its command one whole period to act, then judge
         it on a view taken then."""
-        if not self.lockstep:  # in lockstep the command acted for a whole period when sent
+        if self.lockstep_s is None:  # in lockstep the command acted for a whole period when sent
             sleep_until(self._t_sent + self.clock.period_s)
         if self.sent_rad is None:
             return self.reason
@@ -649,7 +650,7 @@ class ControlSession:
             park_after_s = min(park_after_s, self.LOOK_FROM_PARK_S)
         # a lockstep world moves one period per hold (and not at all without one): its objects
         # stand still for as many periods as the wall-clock wait would take, without the wait
-        lockstep_s = self.arm.lockstep_period_s
+        lockstep_s = self.lockstep_s
         start = time.monotonic() if lockstep_s is None else self._lockstep_wait_s
         parked = self.config.dry_run
         while True:
