@@ -537,10 +537,17 @@ class ArmBase(ABC):
         deadline = start + timeout_s
         next_t = start
         prev_sent: np.ndarray | None = None
+        # the last command that moved the targets, when it went out, and the model's time from
+        # the command before it: a host that ran late sent its steps late, and the horn that
+        # follows them arrives late too
+        changed_at = start
+        before_change = start_state.positions_rad
+        tail_s: np.ndarray | None = None
         best = np.full(spec.n_actuators, np.inf)
         last_progress_t = start
         while True:
             goal = np.where(held_mask, hold_at, target)
+            sent_at = self.now_s()
             if not fault:
                 sent = self.command(self._ramp(goal, max_speed_rad_s, period))
             else:
@@ -556,12 +563,18 @@ class ArmBase(ABC):
             name = spec.actuator_names[worst]
             # the targets sit on the goal once the step clamp no longer moves them
             settled_targets = prev_sent is not None and np.array_equal(sent, prev_sent)
-            prev_sent = sent
             if not settled_targets:
                 best[:] = np.inf
                 last_progress_t = now
+                if prev_sent is not None:
+                    changed_at, before_change, tail_s = sent_at, prev_sent, None
+                prev_sent = sent
             else:
-                waited = now - start >= model_s
+                if tail_s is None:
+                    tail_s = arrival_time_s(
+                        spec, before_change, target, tol, command_speed_rad_s=max_speed_rad_s
+                    )
+                waited = (now - start >= model_s) & (now - changed_at >= tail_s)
                 if np.all((err <= tol) & (felt | waited)):
                     self._say_unfelt(~felt, model_s)
                     return state, ""

@@ -194,10 +194,10 @@ def test_brownout_gives_a_new_boot_id_and_limp_servos(
 
 # ---- byte-stream replay: the AVR binary vs the Python model -------------------------------------
 def _traffic(seed: int, n: int) -> list[tuple[float, bytes]]:
-    """Protocol-shaped chunks with the wall-clock pause before each. Every pause stays far from a
-    firmware time threshold (10 ms gap, 250 ms watchdog, 500 ms hold) and every reply that
-    carries the output pulses comes after the slew finished, so no reply depends on which
-    millisecond a byte landed in: the model and the chip must agree byte for byte."""
+    """Protocol-shaped chunks with the pause before each, on the chip's clock. Every pause stays
+    far from a firmware time threshold (10 ms gap, 250 ms watchdog, 500 ms hold) and every
+    reply that carries the output pulses comes after the slew finished, so no reply depends on
+    which millisecond a byte landed in: the model and the chip must agree byte for byte."""
     rng = random.Random(seed)
     seq = 0
 
@@ -293,6 +293,24 @@ def _model_replay(
     return replies, log
 
 
+def _pause_on_the_chips_clock(emu: AvrEmulator, sent_bytes: int, pause_s: float) -> None:
+    """Wait until the chip has taken every byte sent so far and then run ``pause_s`` of its own
+    time: a starved simulator runs slower than the wall, and a wall-clock pause would reach it
+    shorter, near a firmware threshold (a 20 ms pause read as the 10 ms frame gap)."""
+
+    def received() -> tuple[int, float]:
+        rx = [(t, len(d)) for k, t, d in list(emu.traffic) if k == "RX"]
+        return sum(n for _, n in rx), max((t for t, _ in rx), default=0.0)
+
+    assert emu.wait_until(lambda: received()[0] >= sent_bytes, scaled(10.0)), (
+        f"the chip did not take the {sent_bytes} bytes sent"
+    )
+    after_s = received()[1] + pause_s
+    assert emu.wait_until(lambda: emu.now_s() >= after_s, scaled(10.0)), (
+        f"the chip's clock stopped before {after_s:.3f} s"
+    )
+
+
 def _move_wipers_quietly(emu: AvrEmulator, counts: dict[str, int]) -> None:
     """Move wipers between frames, on the chip's clock rather than the wall's: every byte sent
     so far is processed first, and the next is sent only once the chip's ADC has read each new
@@ -360,12 +378,15 @@ def _replay_matches_the_model(spec: ArmSpec, emu: AvrEmulator, seed: int, build:
         emu.set_pot_counts(name, counts)
     chunks = _traffic(seed, spec.n_actuators)
     half = len(chunks) // 2
+    sent_bytes = 0
     with serial.Serial(emu.port, 115200, timeout=0) as port:
         for k, (pause, data) in enumerate(chunks):
             if k == half and pinned:  # a quiet moment: no frame in flight, none due soon
                 _move_wipers_quietly(emu, {names[0]: 800, names[2]: 1020})  # 1020: clamped
-            time.sleep(pause)
+            if pause > 0:
+                _pause_on_the_chips_clock(emu, sent_bytes, pause)
             port.write(data)
+            sent_bytes += len(data)
             port.read(4096)  # keep the line drained
         assert emu.sync(timeout_s=scaled(10.0)), "the chip did not catch up with the bytes sent"
         time.sleep(0.05)

@@ -252,7 +252,7 @@ def test_cameras_that_stop_delivering_stop_the_run_safely(
             self.arm.world.cameras.freeze()  # type: ignore[attr-defined]
 
     monkeypatch.setattr(session_mod.ControlSession, "log_period", freeze_after_10)
-    opts = DeployOptions(camera_timeout_s=scaled(1.0), **MOCK)
+    opts = DeployOptions(camera_timeout_s=scaled(2.5), **MOCK)  # a starved renderer lags 1 s
     with pytest.raises(HardwareError, match="cameras stopped delivering frames"):
         run_policy(
             ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec, opts,
