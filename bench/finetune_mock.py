@@ -105,7 +105,7 @@ def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, fl
 def main() -> None:
     from hardware.spec import load_spec
     from sim2real.deploy.runner import DeployOptions
-    from sim2real.finetune.defaults import LEARNER_DEFAULTS
+    from sim2real.finetune.defaults import ACTOR_UPDATES, LEARNER_DEFAULTS
     from sim2real.finetune.runner import FinetuneOptions, finetune
     from sim2real.policies import shipped
 
@@ -121,6 +121,9 @@ def main() -> None:
     ap.add_argument("--actor-starts", type=int, default=LEARNER_DEFAULTS["actor_starts"])
     ap.add_argument("--relabel", type=float, default=None, help="default: the task's")
     ap.add_argument("--noise-std", type=float, default=None, help="default: finetune's")
+    ap.add_argument("--anchor", type=float, default=None, help="default: finetune's")
+    ap.add_argument("--actor-update", choices=sorted(ACTOR_UPDATES), default="critic")
+    ap.add_argument("--success-ratio", type=float, default=1.0)
     ap.add_argument("--eval-every", type=float, default=1.5, help="arm minutes")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
@@ -141,11 +144,14 @@ def main() -> None:
     common = {
         "policy": args.policy, "plant": args.plant, "algo": args.algo or "source's",
         "mix_sim_buffer": args.mix_sim_buffer, "utd": args.utd, "actor_starts": args.actor_starts,
+        "actor_update": args.actor_update, "success_ratio": args.success_ratio,
+        "anchor": args.anchor,
         "watchdog_s": args.watchdog_s or spec.safety.watchdog_timeout_s,
         "machine": f"{platform.machine()} {os.cpu_count()} cpu",
         "date": time.strftime("%Y-%m-%d"),
     }  # fmt: skip
     tag = f"{Path(args.policy).name}-{args.plant}{'-mix' if args.mix_sim_buffer else ''}"
+    tag += "" if args.actor_update == "critic" else f"-{args.actor_update}"
     curves: dict[int, list[dict[str, Any]]] = {}
     for seed in range(args.seeds):
         out = args.out / f"{tag}-s{seed}"
@@ -165,7 +171,8 @@ def main() -> None:
             deploy=opts,
             minutes=args.minutes, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
             utd=args.utd, learning_starts=args.learning_starts, actor_starts=args.actor_starts,
-            relabel=args.relabel, noise_std=args.noise_std, keys=False,
+            relabel=args.relabel, noise_std=args.noise_std, keys=False, anchor=args.anchor,
+            actor_update=args.actor_update, success_ratio=args.success_ratio,
             eval_every_min=args.eval_every, eval_episodes=args.eval_episodes, seed=seed,
             start_timeout_s=30.0,
         )  # fmt: skip

@@ -81,9 +81,10 @@ def evaluate(env: Any, actor: Any, episodes: int, seed: int) -> float:
 def main() -> None:
     from sim2real.finetune.actor import NumpyActor, ObsNormalizer
     from sim2real.finetune.checkpoint import resolve
-    from sim2real.finetune.defaults import LEARNER_DEFAULTS
+    from sim2real.finetune.defaults import ACTOR_UPDATES, LEARNER_DEFAULTS
     from sim2real.finetune.learner import Learner, LearnerConfig, RewardShaper, SimBufferConfig
     from sim2real.finetune.relabel import default_ratio, goal_fields
+    from sim2real.finetune.runner import default_anchor
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("policy")
@@ -102,6 +103,9 @@ def main() -> None:
     p.add_argument("--mix-sim-buffer", action="store_true")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--relabel", type=float, default=None, help="default: finetune's for the task")
+    p.add_argument("--anchor", type=float, default=None, help="default: finetune's for the source")
+    p.add_argument("--actor-update", choices=sorted(ACTOR_UPDATES), default="critic")
+    p.add_argument("--success-ratio", type=float, default=1.0)
     a = p.parse_args()
 
     src = resolve(a.policy, a.algo)
@@ -118,12 +122,15 @@ def main() -> None:
                               seed=a.seed)  # fmt: skip
     penalty = 0.0 if a.no_penalty else Learner.action_rate_penalty(src.config)
     relabel = default_ratio(src.config) if a.relabel is None else a.relabel
+    anchor = default_anchor(src.config) if a.anchor is None else a.anchor
     cfg = LearnerConfig(
         algo=algo, source_algo=src.algo, model_zip=str(src.model_zip), obs_stats=src.obs_stats,
         learning_starts=a.learning_starts, utd=a.utd, seed=a.seed, sim_buffer=sim,
         actor_starts=a.actor_delay, learning_rate=a.lr,
         action_rate_penalty=penalty, relabel_ratio=relabel,
         goal_fields=goal_fields(src.config) if relabel > 0 else None,
+        anchor_ratio=anchor, anchor_zip=str(src.model_zip) if anchor > 0 else None,
+        actor_update=a.actor_update, success_ratio=a.success_ratio,
     )  # fmt: skip
     t0 = time.monotonic()
     learner = Learner(cfg)
@@ -142,10 +149,11 @@ def main() -> None:
     pending = 0.0
     for step in range(1, a.steps + 1):
         action = actor.explore(obs, rng)
-        nxt, reward, term, trunc, _ = env.step(action)
+        nxt, reward, term, trunc, info = env.step(action)
         learner.add(norm(obs), action, shaper(reward, action), norm(nxt), term)
         obs = nxt
         if term or trunc:
+            learner.end_episode(bool(info.get("is_success", False)))
             obs, _ = env.reset()
             shaper.reset()
         if learner.buffer.size() >= a.learning_starts:
@@ -161,6 +169,7 @@ def main() -> None:
             actor.load_flat(learner.flat_actor())
             emit("proxy_eval_success", evaluate(eval_env, actor, a.eval_episodes, 10_000), "",
                  env_steps=step, updates=learner.updates - learner.start_updates,
+                 successful_transitions=learner.successful_transitions,
                  learn_s=round(learn_s, 1), wall_s=round(time.monotonic() - t0, 1),
                  **setting)  # fmt: skip
 

@@ -13,7 +13,7 @@ from sim2real.deploy.connection import add_arm_options, arm_connection
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from sim2real.finetune.defaults import LEARNER_DEFAULTS
+    from sim2real.finetune.defaults import ACTOR_UPDATES, LEARNER_DEFAULTS
 
     parser.add_argument("policy", help="a run directory (DDPG/TD3/SAC) or a shipped policy name")
     add_arm_options(parser, ("mock", "serial"))
@@ -68,6 +68,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="imitation minibatches towards the source actor per gradient step (default: 0.5 for "
         "a source trained with a DAgger stage, such as pick-ddpg; 0 otherwise)",
     )  # fmt: skip
+    parser.add_argument(
+        "--actor-update", choices=sorted(ACTOR_UPDATES), default="critic",
+        help="how the actor learns: 'critic' follows the critic's gradient (DDPG/TD3's own "
+        "update); 'success' imitates the arm's own successful episodes while the critic learns",
+    )  # fmt: skip
+    parser.add_argument(
+        "--success-ratio", type=float, default=1.0,
+        help="with --actor-update success: imitation minibatches per gradient step",
+    )  # fmt: skip
     parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
     parser.add_argument("--batch-size", type=int, default=None)
     parser.add_argument("--learner-nice", type=int, default=10)
@@ -101,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume, keys=args.keys, checkpoint_every=args.checkpoint_every,
         learning_starts=args.learning_starts, utd=args.utd, actor_starts=args.actor_starts,
         learning_rate=args.learning_rate, noise_std=args.noise_std, relabel=args.relabel,
-        anchor=args.anchor, publish_every=args.publish_every,
+        anchor=args.anchor, actor_update=args.actor_update, success_ratio=args.success_ratio,
+        publish_every=args.publish_every,
         batch_size=args.batch_size, learner_nice=args.learner_nice,
         success_window=args.success_window, eval_every_min=args.eval_every,
         eval_episodes=args.eval_episodes, max_episodes=args.max_episodes, seed=args.seed,

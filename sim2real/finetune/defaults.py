@@ -19,3 +19,10 @@ LEARNER_DEFAULTS: dict[str, float | int] = {
     "relabel": 0.8,
     "noise_std": 0.2,  # DDPG/TD3 exploration std on the normalised actions (sources train at 0.1)
 }
+
+# how the actor learns on the arm (``--actor-update``), and why one would choose each
+ACTOR_UPDATES: dict[str, str] = {
+    "critic": "the algorithm's own update: follow the critic's action gradient",
+    "success": "regress on the actions of the arm's own successful episodes (filtered "
+    "imitation): a critic fitted on minutes of one arm cannot pull the actor off the data",
+}

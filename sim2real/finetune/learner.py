@@ -30,6 +30,7 @@ import numpy as np
 
 from sim2real.deploy import child
 from sim2real.errors import Sim2RealError
+from sim2real.finetune.defaults import ACTOR_UPDATES
 from sim2real.finetune.relabel import EpisodeIndex, GoalFields, Relabeler
 
 log = logging.getLogger(__name__)
@@ -86,9 +87,20 @@ class LearnerConfig:
     # undo the imitation (``docs/studies/pick.md``: DDPG without the anchor fell to 0 %).
     anchor_ratio: float = 0.0
     anchor_zip: str | None = None  # the source's model (a resumed run's model_zip is its own)
+    # how the actor learns (``ACTOR_UPDATES``): "critic", the algorithm's own gradient through
+    # the critic; "success", regression on the actions of the arm's own successful episodes
+    # (the critic still learns, so a later run can follow it)
+    actor_update: str = "critic"
+    success_ratio: float = 1.0  # "success": imitation minibatches per gradient step
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.actor_update not in ACTOR_UPDATES:
+            raise LearnerError(
+                f"actor update {self.actor_update!r} is not one of {sorted(ACTOR_UPDATES)}"
+            )
+        if not (math.isfinite(self.success_ratio) and self.success_ratio > 0):
+            raise LearnerError(f"success ratio {self.success_ratio!r} must be a number > 0")
         if not (math.isfinite(self.anchor_ratio) and self.anchor_ratio >= 0):
             raise LearnerError(f"anchor ratio {self.anchor_ratio!r} must be a number >= 0")
         if self.anchor_ratio > 0 and not self.anchor_zip:
@@ -247,8 +259,22 @@ class Learner:
         if cfg.sim_buffer is not None:
             self.buffer.sim = self._collect_sim(cfg.sim_buffer)
         self.imitation_updates = 0
+        # the arm's own successful episodes: a row mask over the buffer, and the rows of the
+        # episode in flight (an episode counts once its end says it succeeded)
+        self._good = np.zeros(cfg.capacity, bool)
+        self._good_rows: np.ndarray | None = None  # np.flatnonzero(self._good), cached
+        self._episode_rows: list[int] = []
+        self.success_updates = 0
+        self._success_debt = 0.0
+        self._rng = np.random.default_rng(cfg.seed)
+        if cfg.replay_npz is not None:
+            self._load_successes(cfg.replay_npz)
         self._anchor: Any = None  # the source actor, frozen
         self._anchor_debt = 0.0  # imitation minibatches owed (the ratio's fractions)
+        if cfg.actor_update == "success" and self.kind != "deterministic":
+            raise LearnerError(
+                f"--actor-update success needs a deterministic actor, not {self.kind}"
+            )
         if cfg.anchor_ratio > 0:
             if self.kind != "deterministic":
                 raise LearnerError(
@@ -270,28 +296,84 @@ class Learner:
 
     def add(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
             done: bool) -> None:  # fmt: skip
+        row = int(self.buffer.pos)
+        if self._good[row]:  # a full buffer overwrites it
+            self._good[row] = False
+            self._good_rows = None
+        self._episode_rows.append(row)
         self.buffer.add(
             obs[None], next_obs[None], np.asarray(action, np.float32)[None],
             np.asarray([reward], np.float32), np.asarray([float(done)], np.float32), [{}],
         )  # fmt: skip
 
+    def end_episode(self, success: bool) -> None:
+        """The episode whose transitions were added since the last call ended: its rows join
+        the successful ones if it succeeded. A lost episode ends as a failure."""
+        if success and self._episode_rows:
+            self._good[self._episode_rows] = True
+            self._good_rows = None
+        self._episode_rows = []
+
+    @property
+    def successful_transitions(self) -> int:
+        return int(self._good.sum())
+
     def train(self, steps: int) -> None:
         """``steps`` gradient steps; before ``actor_starts`` online transitions, the critic's
-        only (its target follows by Polyak averaging, the actor and its target stay put)."""
+        only (its target follows by Polyak averaging, the actor and its target stay put). With
+        ``actor_update="success"`` the critic learns alone throughout, and the actor imitates
+        the successful episodes."""
         model = self.model
+        if self.cfg.actor_update == "success" and hasattr(model, "policy_delay"):
+            self._critic_only(steps, follow_actor=True)
+            self._imitate(steps)
+            self._imitate_successes(steps)
+            return
         if self.buffer.size() >= self.cfg.actor_starts or not hasattr(model, "policy_delay"):
             model.policy_delay = self.policy_delay
             model.train(gradient_steps=steps, batch_size=self.batch_size)
             self._imitate(steps)
             return
+        self._critic_only(steps)
+
+    def _critic_only(self, steps: int, follow_actor: bool = False) -> None:
+        """Critic updates alone. ``follow_actor``: the actor's target follows an actor that
+        learns by other means, so the critic's bootstrap values the actor that acts."""
         from stable_baselines3.common.utils import polyak_update
 
+        model = self.model
         for _ in range(steps):
             # an actor update happens when _n_updates % policy_delay == 0: never, here
             model.policy_delay = int(model._n_updates) + 2
             model.train(gradient_steps=1, batch_size=self.batch_size)
             polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
+            if follow_actor:
+                polyak_update(model.actor.parameters(), model.actor_target.parameters(), model.tau)
         model.policy_delay = self.policy_delay
+
+    def _imitate_successes(self, steps: int) -> None:
+        """``success_ratio`` minibatches per gradient step: the actor's action on states of
+        the successful episodes regressed on the action taken there (squared error)."""
+        if self._good_rows is None:
+            self._good_rows = np.flatnonzero(self._good)
+        rows = self._good_rows
+        if len(rows) == 0:
+            return
+        import torch as th
+
+        self._success_debt += self.cfg.success_ratio * steps
+        n, self._success_debt = int(self._success_debt), self._success_debt % 1.0
+        actor = self.model.actor
+        b = self.buffer
+        for _ in range(n):
+            pick = rows[self._rng.integers(len(rows), size=self.batch_size)]
+            obs = b.to_torch(b.observations[pick, 0])
+            taken = b.to_torch(b.actions[pick, 0])
+            loss = th.nn.functional.mse_loss(actor(obs), taken)
+            actor.optimizer.zero_grad()
+            loss.backward()
+            actor.optimizer.step()
+        self.success_updates += n
 
     def _imitate(self, steps: int) -> None:
         """``anchor_ratio`` imitation minibatches per gradient step: the actor's action on
@@ -338,6 +420,7 @@ class Learner:
             dones=self.buffer.dones[:n, 0],
             pos=np.asarray(self.buffer.pos),
             full=np.asarray(self.buffer.full),
+            successful_rows=np.flatnonzero(self._good[: self.buffer.buffer_size]),
         )
         atomic_write_bytes(replay_path, out.getvalue())
 
@@ -354,6 +437,11 @@ class Learner:
             b.dones[:n, 0] = data["dones"]
             b.full = bool(data["full"]) and n == b.buffer_size
             b.pos = int(data["pos"]) if b.full else n % b.buffer_size
+
+    def _load_successes(self, path: str) -> None:
+        with np.load(path) as data:
+            if "successful_rows" in data.files:
+                self._good[data["successful_rows"]] = True
 
     def _collect_sim(self, sc: SimBufferConfig) -> Any:
         """Sim transitions from the source run's env, acted by the source actor (exploring)."""
@@ -472,11 +560,13 @@ def _learn(
                 since_publish += 1
                 if learner.buffer.size() >= cfg.learning_starts:
                     pending = min(pending + cfg.utd, cap)
+            elif request.op == "e":
+                learner.end_episode(*request.args)
             elif request.op == "save":
                 learner.save(*request.args)
                 channel.answer((learner.updates, int(learner.buffer.size())))
             else:
-                raise LearnerError(f"unknown request {request.op!r}; valid: ['save', 't']")
+                raise LearnerError(f"unknown request {request.op!r}; valid: ['e', 'save', 't']")
         if channel.stopping:
             return
         if learner.buffer.size() >= cfg.learning_starts and pending >= 1:
@@ -544,6 +634,10 @@ class LearnerHandle:
     def send(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
              done: bool) -> None:  # fmt: skip
         self._child.post("t", obs, action, float(reward), next_obs, bool(done))
+
+    def end_episode(self, success: bool) -> None:
+        """The transitions sent since the last call were one episode, and how it ended."""
+        self._child.post("e", bool(success))
 
     def check(self) -> None:
         """Between episodes: a learner that failed or died is an error here, in one line."""

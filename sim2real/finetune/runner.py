@@ -33,7 +33,7 @@ from hardware.spec import ArmSpec
 from sim2real.deploy.runner import DeployOptions
 from sim2real.errors import ConfigError
 from sim2real.finetune.checkpoint import ALGOS, FinetuneDir, FinetuneSource, resolve
-from sim2real.finetune.defaults import LEARNER_DEFAULTS
+from sim2real.finetune.defaults import ACTOR_UPDATES, LEARNER_DEFAULTS
 from sim2real.finetune.relabel import default_ratio
 from sim2real.finetune.results import EvalFigures, FinetuneSummary, LoopFigures
 
@@ -72,6 +72,8 @@ class FinetuneOptions:
     # imitation minibatches towards the source actor per gradient step; None: the source's
     # (DAGGER_ANCHOR_RATIO where it was trained with a DAgger anchor, else none)
     anchor: float | None = None
+    actor_update: str = "critic"  # ``learner.ACTOR_UPDATES``
+    success_ratio: float = 1.0  # "success": imitation minibatches per gradient step
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
     learner_nice: int = 10
@@ -93,6 +95,12 @@ class FinetuneOptions:
         for name in ("checkpoint_every", "publish_every", "eval_episodes", "success_window"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"--{name.replace('_', '-')} must be >= 1")
+        if self.actor_update not in ACTOR_UPDATES:
+            raise ConfigError(
+                f"--actor-update {self.actor_update!r} is not one of {sorted(ACTOR_UPDATES)}"
+            )
+        if not (math.isfinite(self.success_ratio) and self.success_ratio > 0):
+            raise ConfigError(f"--success-ratio must be a number > 0, got {self.success_ratio!r}")
         if self.anchor is not None and not (math.isfinite(self.anchor) and self.anchor >= 0):
             raise ConfigError(f"--anchor must be a number >= 0, got {self.anchor!r}")
         if self.noise_std is not None and not (
@@ -223,6 +231,8 @@ class _Run:
             goal_fields=goal_fields(src.config) if ratio > 0 else None,
             anchor_ratio=self.anchor,
             anchor_zip=str(src.model_zip) if self.anchor > 0 else None,
+            actor_update=fo.actor_update,
+            success_ratio=fo.success_ratio,
         )
 
     def checkpoint(self, learner: Any, final: bool = False) -> None:
@@ -410,6 +420,7 @@ class _Run:
                     try:
                         nxt, reward, terminated, truncated, info = env.step(action)
                     except HardwareError as exc:
+                        learner.end_episode(False)  # its transitions stay, as a failure
                         self._recover(exc, env, t0)
                         break
                     # the transition as the env saw it: this period's observation, the action
@@ -476,6 +487,7 @@ class _Run:
         st["arm_s"] = float(st["arm_s"]) + arm_s
         st["episodes"] = episode + 1
         success = bool(info.get("is_success", False))
+        learner.end_episode(success)
         rows.save(self.dir.episode_log(episode))
         if recorder is not None:
             recorder.on_episode(episode, success, rows.rows)

@@ -231,3 +231,71 @@ def test_an_anchor_ratio_that_is_not_a_count_is_refused(bad: float) -> None:
     with pytest.raises(LearnerError, match="anchor ratio"):
         LearnerConfig(algo="ddpg", source_algo="ddpg", model_zip="m.zip", obs_stats=None,
                       anchor_ratio=bad, anchor_zip="m.zip")  # fmt: skip
+
+
+def test_success_imitation_learns_only_from_successful_episodes_and_resumes_with_them(
+    tmp_path: Path,
+) -> None:
+    """``actor_update="success"``: the actor regresses on the actions of episodes that ended in
+    success, never on a failed one's; the critic learns meanwhile; a checkpoint carries which
+    rows were successful, so a resumed run goes on imitating them."""
+    from dataclasses import replace
+
+    zip_path, stats = _ddpg_source()
+    cfg = LearnerConfig(
+        algo="ddpg", source_algo="ddpg", model_zip=str(zip_path),
+        obs_stats=stats["vecnormalize"],  # type: ignore[arg-type]
+        batch_size=32, actor_update="success", success_ratio=2.0,
+    )  # fmt: skip
+    rng = np.random.default_rng(6)
+    good, bad = rng.normal(size=(2, 40, 24)).astype(np.float32)
+
+    def episode(learner: Learner, states: np.ndarray, action: float, success: bool) -> None:
+        for o in states:
+            learner.add(o, np.full(3, action, np.float32), 1.0 if success else -1.0, o, False)
+        learner.end_episode(success)
+
+    def act(learner: Learner, states: np.ndarray) -> np.ndarray:
+        with th.no_grad():
+            return learner.model.actor(th.as_tensor(states)).numpy()
+
+    # a failed episode alone teaches the actor nothing
+    failed = Learner(cfg)
+    episode(failed, bad, -0.9, False)
+    actor0 = failed.flat_actor()
+    critic0 = flatten([p.detach().numpy().copy() for p in failed.model.critic.parameters()])
+    failed.train(10)
+    assert failed.successful_transitions == 0 and failed.success_updates == 0
+    assert np.array_equal(failed.flat_actor(), actor0)
+    critic = flatten([p.detach().numpy() for p in failed.model.critic.parameters()])
+    assert not np.allclose(critic, critic0)  # the critic learns all the same
+
+    learner = Learner(cfg)
+    episode(learner, good, 0.9, True)
+    episode(learner, bad, -0.9, False)
+    assert learner.successful_transitions == len(good)
+    before = np.abs(act(learner, good) - 0.9).mean()
+    for _ in range(20):
+        learner.train(2)
+    assert learner.success_updates == 80
+    after = np.abs(act(learner, good) - 0.9).mean()
+    assert after < 0.5 * before, (before, after)
+    model_zip, replay = tmp_path / "m.zip", tmp_path / "r.npz"
+    learner.save([str(model_zip)], str(replay))
+    resumed = Learner(replace(cfg, model_zip=str(model_zip), replay_npz=str(replay), resume=True))
+    assert resumed.successful_transitions == len(good)
+    assert resumed.buffer.size() == len(good) + len(bad)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [("actor_update", "qfilter", "'qfilter'"), ("success_ratio", 0.0, "success ratio 0.0")],
+)
+def test_an_unknown_actor_update_or_a_bad_success_ratio_is_refused(
+    field: str, value: object, match: str
+) -> None:
+    from sim2real.finetune.learner import LearnerError
+
+    with pytest.raises(LearnerError, match=match):
+        LearnerConfig(algo="ddpg", source_algo="ddpg", model_zip="m.zip", obs_stats=None,
+                      **{field: value})  # type: ignore[arg-type]  # fmt: skip
