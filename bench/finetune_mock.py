@@ -123,7 +123,9 @@ def main() -> None:
     ap.add_argument("--noise-std", type=float, default=None, help="default: finetune's")
     ap.add_argument("--anchor", type=float, default=None, help="default: finetune's")
     ap.add_argument("--actor-update", choices=sorted(ACTOR_UPDATES), default="critic")
-    ap.add_argument("--success-ratio", type=float, default=1.0)
+    ap.add_argument("--imitation-ratio", type=float, default=1.0)
+    ap.add_argument("--noise-corr-steps", type=float, default=0.0)
+    ap.add_argument("--gripper-noise-std", type=float, default=None)
     ap.add_argument("--eval-every", type=float, default=1.5, help="arm minutes")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
@@ -144,8 +146,9 @@ def main() -> None:
     common = {
         "policy": args.policy, "plant": args.plant, "algo": args.algo or "source's",
         "mix_sim_buffer": args.mix_sim_buffer, "utd": args.utd, "actor_starts": args.actor_starts,
-        "actor_update": args.actor_update, "success_ratio": args.success_ratio,
-        "anchor": args.anchor,
+        "actor_update": args.actor_update, "imitation_ratio": args.imitation_ratio,
+        "anchor": args.anchor, "noise_corr_steps": args.noise_corr_steps,
+        "gripper_noise_std": args.gripper_noise_std,
         "watchdog_s": args.watchdog_s or spec.safety.watchdog_timeout_s,
         "machine": f"{platform.machine()} {os.cpu_count()} cpu",
         "date": time.strftime("%Y-%m-%d"),
@@ -172,7 +175,8 @@ def main() -> None:
             minutes=args.minutes, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
             utd=args.utd, learning_starts=args.learning_starts, actor_starts=args.actor_starts,
             relabel=args.relabel, noise_std=args.noise_std, keys=False, anchor=args.anchor,
-            actor_update=args.actor_update, success_ratio=args.success_ratio,
+            actor_update=args.actor_update, imitation_ratio=args.imitation_ratio,
+            noise_corr_steps=args.noise_corr_steps, gripper_noise_std=args.gripper_noise_std,
             eval_every_min=args.eval_every, eval_episodes=args.eval_episodes, seed=seed,
             start_timeout_s=30.0,
         )  # fmt: skip

@@ -105,7 +105,9 @@ def main() -> None:
     p.add_argument("--relabel", type=float, default=None, help="default: finetune's for the task")
     p.add_argument("--anchor", type=float, default=None, help="default: finetune's for the source")
     p.add_argument("--actor-update", choices=sorted(ACTOR_UPDATES), default="critic")
-    p.add_argument("--success-ratio", type=float, default=1.0)
+    p.add_argument("--imitation-ratio", type=float, default=1.0)
+    p.add_argument("--noise-corr-steps", type=float, default=0.0, help="AR(1) exploration noise")
+    p.add_argument("--gripper-noise", type=float, default=None, help="the gripper's own std")
     a = p.parse_args()
 
     src = resolve(a.policy, a.algo)
@@ -130,7 +132,7 @@ def main() -> None:
         action_rate_penalty=penalty, relabel_ratio=relabel,
         goal_fields=goal_fields(src.config) if relabel > 0 else None,
         anchor_ratio=anchor, anchor_zip=str(src.model_zip) if anchor > 0 else None,
-        actor_update=a.actor_update, success_ratio=a.success_ratio,
+        actor_update=a.actor_update, imitation_ratio=a.imitation_ratio,
     )  # fmt: skip
     t0 = time.monotonic()
     learner = Learner(cfg)
@@ -138,7 +140,8 @@ def main() -> None:
     normalizer = ObsNormalizer.from_stats(src.obs_stats)
     norm = normalizer or (lambda o: np.asarray(o, np.float32))
     actor = NumpyActor(learner.kind, learner.shapes, learner.flat_actor(), normalizer,
-                       a.noise if a.noise is not None else LEARNER_DEFAULTS["noise_std"])  # fmt: skip
+                       a.noise if a.noise is not None else LEARNER_DEFAULTS["noise_std"],
+                       a.noise_corr_steps, a.gripper_noise)  # fmt: skip
     rng = np.random.default_rng(a.seed)
     setting = {k: v for k, v in vars(a).items() if k not in ("policy",)}
     learn_s = 0.0
@@ -154,6 +157,7 @@ def main() -> None:
         obs = nxt
         if term or trunc:
             learner.end_episode(bool(info.get("is_success", False)))
+            actor.reset_noise()
             obs, _ = env.reset()
             shaper.reset()
         if learner.buffer.size() >= a.learning_starts:

@@ -59,6 +59,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default: {LEARNER_DEFAULTS['noise_std']})",
     )  # fmt: skip
     parser.add_argument(
+        "--noise-corr-steps", type=float, default=0.0,
+        help="exploration noise correlated over about this many steps (AR(1)); 0: white",
+    )  # fmt: skip
+    parser.add_argument(
+        "--gripper-noise-std", type=float, default=None,
+        help="the gripper's own exploration std (default: --noise-std): a policy that never "
+        "closes where the arm stalls needs to try closing there",
+    )  # fmt: skip
+    parser.add_argument(
         "--relabel", type=float, default=None,
         help="share of every batch given a goal the tool reached later in its episode (hindsight "
         f"relabelling; default: {LEARNER_DEFAULTS['relabel']} for reach, 0 for tasks without goals)",
@@ -74,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "update); 'success' imitates the arm's own successful episodes while the critic learns",
     )  # fmt: skip
     parser.add_argument(
-        "--success-ratio", type=float, default=1.0,
+        "--imitation-ratio", type=float, default=1.0,
         help="with --actor-update success: imitation minibatches per gradient step",
     )  # fmt: skip
     parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
@@ -110,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume, keys=args.keys, checkpoint_every=args.checkpoint_every,
         learning_starts=args.learning_starts, utd=args.utd, actor_starts=args.actor_starts,
         learning_rate=args.learning_rate, noise_std=args.noise_std, relabel=args.relabel,
-        anchor=args.anchor, actor_update=args.actor_update, success_ratio=args.success_ratio,
+        noise_corr_steps=args.noise_corr_steps, gripper_noise_std=args.gripper_noise_std,
+        anchor=args.anchor, actor_update=args.actor_update, imitation_ratio=args.imitation_ratio,
         publish_every=args.publish_every,
         batch_size=args.batch_size, learner_nice=args.learner_nice,
         success_window=args.success_window, eval_every_min=args.eval_every,

@@ -13,6 +13,7 @@ explores).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -104,13 +105,22 @@ class NumpyActor:
         flat: np.ndarray,
         normalizer: ObsNormalizer | None,
         noise_std: float = 0.1,
+        noise_corr_steps: float = 0.0,
+        gripper_noise_std: float | None = None,
     ) -> None:
         if kind not in ("deterministic", "gaussian"):
             raise ConfigError(f"actor kind {kind!r} is not deterministic or gaussian")
+        if not (math.isfinite(noise_corr_steps) and noise_corr_steps >= 0):
+            raise ConfigError(f"noise correlation {noise_corr_steps!r} steps must be >= 0")
         self.kind, self.shapes = kind, [tuple(s) for s in shapes]
         self.size = int(sum(int(np.prod(s)) for s in self.shapes))
         self.normalizer = normalizer
         self.noise_std = float(noise_std)
+        # DDPG/TD3 exploration: Gaussian, white (0 steps) or AR(1) with this correlation time,
+        # the last action component (a gripper) with a std of its own where given
+        self.noise_rho = math.exp(-1.0 / noise_corr_steps) if noise_corr_steps > 0 else 0.0
+        self.gripper_noise_std = gripper_noise_std
+        self._noise: np.ndarray | None = None
         self.arrays: list[np.ndarray] = []
         self.load_flat(flat)
 
@@ -149,10 +159,23 @@ class NumpyActor:
         out, _ = self._heads(obs)
         return np.asarray(out if self.kind == "deterministic" else np.tanh(out), np.float32)
 
+    def reset_noise(self) -> None:
+        """A new episode: correlated exploration noise starts afresh."""
+        self._noise = None
+
     def explore(self, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         out, log_std = self._heads(obs)
         if log_std is None:
-            noisy = out + rng.normal(0.0, self.noise_std, out.shape)
+            std = np.full(out.shape, self.noise_std)
+            if self.gripper_noise_std is not None:
+                std[-1] = self.gripper_noise_std
+            fresh = rng.standard_normal(out.shape)
+            rho = self.noise_rho
+            if self._noise is None or rho == 0.0:
+                self._noise = fresh
+            else:  # AR(1): unit variance, correlation rho per step
+                self._noise = rho * self._noise + math.sqrt(1.0 - rho * rho) * fresh
+            noisy = out + std * self._noise
             return np.clip(noisy, -1.0, 1.0).astype(np.float32)
         sample = out + np.exp(log_std) * rng.standard_normal(out.shape)
         return np.tanh(sample).astype(np.float32)

@@ -25,4 +25,6 @@ ACTOR_UPDATES: dict[str, str] = {
     "critic": "the algorithm's own update: follow the critic's action gradient",
     "success": "regress on the actions of the arm's own successful episodes (filtered "
     "imitation): a critic fitted on minutes of one arm cannot pull the actor off the data",
+    "advantage": "regress on every action the arm took, weighted by the critic's advantage "
+    "(AWAC): the critic chooses among the data, it cannot lead the actor away from it",
 }

@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 
 MAX_ACTOR_FLOATS = 4_000_000  # the shared actor vector (16 MB): far above any MLP we train
 TRAIN_CHUNK = 4  # gradient steps between two looks at the queue
+AWR_MAX_WEIGHT = 20.0  # advantage-weighted regression: one row's weight at most (AWAC's clip)
 READY_TIMEOUT_S = 300.0  # loading torch + SB3 (+ a sim buffer) on a loaded 2-core machine
 # the weights block: a float64 header [lock, version, gradient updates, actor size], then the
 # actor as float32
@@ -91,7 +92,7 @@ class LearnerConfig:
     # the critic; "success", regression on the actions of the arm's own successful episodes
     # (the critic still learns, so a later run can follow it)
     actor_update: str = "critic"
-    success_ratio: float = 1.0  # "success": imitation minibatches per gradient step
+    imitation_ratio: float = 1.0  # "success", "advantage": imitation minibatches per step
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -99,8 +100,8 @@ class LearnerConfig:
             raise LearnerError(
                 f"actor update {self.actor_update!r} is not one of {sorted(ACTOR_UPDATES)}"
             )
-        if not (math.isfinite(self.success_ratio) and self.success_ratio > 0):
-            raise LearnerError(f"success ratio {self.success_ratio!r} must be a number > 0")
+        if not (math.isfinite(self.imitation_ratio) and self.imitation_ratio > 0):
+            raise LearnerError(f"imitation ratio {self.imitation_ratio!r} must be a number > 0")
         if not (math.isfinite(self.anchor_ratio) and self.anchor_ratio >= 0):
             raise LearnerError(f"anchor ratio {self.anchor_ratio!r} must be a number >= 0")
         if self.anchor_ratio > 0 and not self.anchor_zip:
@@ -264,7 +265,7 @@ class Learner:
         self._good = np.zeros(cfg.capacity, bool)
         self._good_rows: np.ndarray | None = None  # np.flatnonzero(self._good), cached
         self._episode_rows: list[int] = []
-        self.success_updates = 0
+        self.own_imitation_updates = 0
         self._success_debt = 0.0
         self._rng = np.random.default_rng(cfg.seed)
         if cfg.replay_npz is not None:
@@ -324,10 +325,13 @@ class Learner:
         ``actor_update="success"`` the critic learns alone throughout, and the actor imitates
         the successful episodes."""
         model = self.model
-        if self.cfg.actor_update == "success" and hasattr(model, "policy_delay"):
+        if self.cfg.actor_update != "critic" and hasattr(model, "policy_delay"):
             self._critic_only(steps, follow_actor=True)
             self._imitate(steps)
-            self._imitate_successes(steps)
+            if self.cfg.actor_update == "success":
+                self._imitate_successes(steps)
+            else:
+                self._imitate_advantage(steps)
             return
         if self.buffer.size() >= self.cfg.actor_starts or not hasattr(model, "policy_delay"):
             model.policy_delay = self.policy_delay
@@ -352,7 +356,7 @@ class Learner:
         model.policy_delay = self.policy_delay
 
     def _imitate_successes(self, steps: int) -> None:
-        """``success_ratio`` minibatches per gradient step: the actor's action on states of
+        """``imitation_ratio`` minibatches per gradient step: the actor's action on states of
         the successful episodes regressed on the action taken there (squared error)."""
         if self._good_rows is None:
             self._good_rows = np.flatnonzero(self._good)
@@ -361,7 +365,7 @@ class Learner:
             return
         import torch as th
 
-        self._success_debt += self.cfg.success_ratio * steps
+        self._success_debt += self.cfg.imitation_ratio * steps
         n, self._success_debt = int(self._success_debt), self._success_debt % 1.0
         actor = self.model.actor
         b = self.buffer
@@ -373,7 +377,31 @@ class Learner:
             actor.optimizer.zero_grad()
             loss.backward()
             actor.optimizer.step()
-        self.success_updates += n
+        self.own_imitation_updates += n
+
+    def _imitate_advantage(self, steps: int) -> None:
+        """``imitation_ratio`` minibatches per gradient step of advantage-weighted regression
+        (AWAC, Nair et al. 2020): the actor regresses on every action taken, each weighted by
+        ``exp(A / std(A))`` (at most ``AWR_MAX_WEIGHT``), A = Q(s, a) - Q(s, actor(s)) from the
+        critic learning on the arm. It moves only towards actions the arm took, so a critic fitted
+        on minutes of data cannot pull it where no data is."""
+        import torch as th
+
+        self._success_debt += self.cfg.imitation_ratio * steps
+        n, self._success_debt = int(self._success_debt), self._success_debt % 1.0
+        actor, critic = self.model.actor, self.model.critic
+        for _ in range(n):
+            batch = self.buffer.sample(self.batch_size)
+            obs, taken = batch.observations, batch.actions
+            with th.no_grad():
+                adv = critic.q1_forward(obs, taken) - critic.q1_forward(obs, actor(obs))
+                weight = th.exp(adv / (adv.std() + 1e-6)).clamp(max=AWR_MAX_WEIGHT)
+            err = ((actor(obs) - taken) ** 2).sum(dim=-1, keepdim=True)
+            loss = (weight * err).mean()
+            actor.optimizer.zero_grad()
+            loss.backward()
+            actor.optimizer.step()
+        self.own_imitation_updates += n
 
     def _imitate(self, steps: int) -> None:
         """``anchor_ratio`` imitation minibatches per gradient step: the actor's action on

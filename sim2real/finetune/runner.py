@@ -68,12 +68,14 @@ class FinetuneOptions:
     actor_starts: int = int(LEARNER_DEFAULTS["actor_starts"])  # online transitions: critic only
     learning_rate: float | None = None  # None: the source run's
     noise_std: float | None = None  # DDPG/TD3 exploration std (normalised actions); None: default
+    noise_corr_steps: float = 0.0  # 0: white noise; else AR(1) with this correlation time
+    gripper_noise_std: float | None = None  # the gripper's own exploration std; None: noise_std
     relabel: float | None = None  # hindsight-goal share of a batch; None: the task's default
     # imitation minibatches towards the source actor per gradient step; None: the source's
     # (DAGGER_ANCHOR_RATIO where it was trained with a DAgger anchor, else none)
     anchor: float | None = None
     actor_update: str = "critic"  # ``learner.ACTOR_UPDATES``
-    success_ratio: float = 1.0  # "success": imitation minibatches per gradient step
+    imitation_ratio: float = 1.0  # "success": imitation minibatches per gradient step
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
     learner_nice: int = 10
@@ -99,14 +101,24 @@ class FinetuneOptions:
             raise ConfigError(
                 f"--actor-update {self.actor_update!r} is not one of {sorted(ACTOR_UPDATES)}"
             )
-        if not (math.isfinite(self.success_ratio) and self.success_ratio > 0):
-            raise ConfigError(f"--success-ratio must be a number > 0, got {self.success_ratio!r}")
+        if not (math.isfinite(self.imitation_ratio) and self.imitation_ratio > 0):
+            raise ConfigError(
+                f"--imitation-ratio must be a number > 0, got {self.imitation_ratio!r}"
+            )
         if self.anchor is not None and not (math.isfinite(self.anchor) and self.anchor >= 0):
             raise ConfigError(f"--anchor must be a number >= 0, got {self.anchor!r}")
         if self.noise_std is not None and not (
             math.isfinite(self.noise_std) and 0 <= self.noise_std <= 1
         ):
             raise ConfigError(f"--noise-std must be in [0, 1], got {self.noise_std!r}")
+        if not (math.isfinite(self.noise_corr_steps) and self.noise_corr_steps >= 0):
+            raise ConfigError(f"--noise-corr-steps must be >= 0, got {self.noise_corr_steps!r}")
+        if self.gripper_noise_std is not None and not (
+            math.isfinite(self.gripper_noise_std) and 0 <= self.gripper_noise_std <= 2
+        ):
+            raise ConfigError(
+                f"--gripper-noise-std must be in [0, 2], got {self.gripper_noise_std!r}"
+            )
         if self.actor_starts < 0:
             raise ConfigError(f"--actor-starts must be >= 0, got {self.actor_starts}")
         if self.relabel is not None and not (
@@ -232,7 +244,7 @@ class _Run:
             anchor_ratio=self.anchor,
             anchor_zip=str(src.model_zip) if self.anchor > 0 else None,
             actor_update=fo.actor_update,
-            success_ratio=fo.success_ratio,
+            imitation_ratio=fo.imitation_ratio,
         )
 
     def checkpoint(self, learner: Any, final: bool = False) -> None:
@@ -265,7 +277,8 @@ class _Run:
             info = learner.wait_ready()
             normalizer = ObsNormalizer.from_stats(self.src.obs_stats)
             actor = NumpyActor(info["kind"], info["shapes"], learner.initial_weights(),
-                               normalizer, self.noise_std)  # fmt: skip
+                               normalizer, self.noise_std, self.fo.noise_corr_steps,
+                               self.fo.gripper_noise_std)  # fmt: skip
             self.report({"event": "learner_ready", "algo": self.algo,
                          **info, "noise_std": self.noise_std,  # what explores, not the source's
                          "learner_pid": learner.pid, "resumed": self.resumed,
@@ -398,6 +411,7 @@ class _Run:
                 step = 0
                 info: dict[str, Any] = {}
                 shaper.reset()
+                actor.reset_noise()
                 try:
                     # a lost episode's retry draws its objects anew: the placement that made
                     # the policy press the cube into the table would likely do so again

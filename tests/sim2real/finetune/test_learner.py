@@ -245,7 +245,7 @@ def test_success_imitation_learns_only_from_successful_episodes_and_resumes_with
     cfg = LearnerConfig(
         algo="ddpg", source_algo="ddpg", model_zip=str(zip_path),
         obs_stats=stats["vecnormalize"],  # type: ignore[arg-type]
-        batch_size=32, actor_update="success", success_ratio=2.0,
+        batch_size=32, actor_update="success", imitation_ratio=2.0,
     )  # fmt: skip
     rng = np.random.default_rng(6)
     good, bad = rng.normal(size=(2, 40, 24)).astype(np.float32)
@@ -265,7 +265,7 @@ def test_success_imitation_learns_only_from_successful_episodes_and_resumes_with
     actor0 = failed.flat_actor()
     critic0 = flatten([p.detach().numpy().copy() for p in failed.model.critic.parameters()])
     failed.train(10)
-    assert failed.successful_transitions == 0 and failed.success_updates == 0
+    assert failed.successful_transitions == 0 and failed.own_imitation_updates == 0
     assert np.array_equal(failed.flat_actor(), actor0)
     critic = flatten([p.detach().numpy() for p in failed.model.critic.parameters()])
     assert not np.allclose(critic, critic0)  # the critic learns all the same
@@ -277,7 +277,7 @@ def test_success_imitation_learns_only_from_successful_episodes_and_resumes_with
     before = np.abs(act(learner, good) - 0.9).mean()
     for _ in range(20):
         learner.train(2)
-    assert learner.success_updates == 80
+    assert learner.own_imitation_updates == 80
     after = np.abs(act(learner, good) - 0.9).mean()
     assert after < 0.5 * before, (before, after)
     model_zip, replay = tmp_path / "m.zip", tmp_path / "r.npz"
@@ -289,9 +289,9 @@ def test_success_imitation_learns_only_from_successful_episodes_and_resumes_with
 
 @pytest.mark.parametrize(
     ("field", "value", "match"),
-    [("actor_update", "qfilter", "'qfilter'"), ("success_ratio", 0.0, "success ratio 0.0")],
+    [("actor_update", "qfilter", "'qfilter'"), ("imitation_ratio", 0.0, "imitation ratio 0.0")],
 )
-def test_an_unknown_actor_update_or_a_bad_success_ratio_is_refused(
+def test_an_unknown_actor_update_or_a_bad_imitation_ratio_is_refused(
     field: str, value: object, match: str
 ) -> None:
     from sim2real.finetune.learner import LearnerError
@@ -299,3 +299,59 @@ def test_an_unknown_actor_update_or_a_bad_success_ratio_is_refused(
     with pytest.raises(LearnerError, match=match):
         LearnerConfig(algo="ddpg", source_algo="ddpg", model_zip="m.zip", obs_stats=None,
                       **{field: value})  # type: ignore[arg-type]  # fmt: skip
+
+
+def test_advantage_weighted_imitation_follows_the_better_of_the_actions_taken() -> None:
+    """``actor_update="advantage"``: two actions taken on the same states, one paid and one
+    fined; once the critic has learned that, the actor moves towards the paid one (plain
+    imitation of both would sit between them)."""
+    zip_path, stats = _ddpg_source()
+    cfg = LearnerConfig(
+        algo="ddpg", source_algo="ddpg", model_zip=str(zip_path),
+        obs_stats=stats["vecnormalize"],  # type: ignore[arg-type]
+        batch_size=64, actor_update="advantage", imitation_ratio=1.0,
+    )  # fmt: skip
+    learner = Learner(cfg)
+    rng = np.random.default_rng(7)
+    states = rng.normal(size=(64, 24)).astype(np.float32)
+    paid, fined = np.full(3, 0.8, np.float32), np.full(3, -0.8, np.float32)
+    for o in states:
+        learner.add(o, paid, 1.0, o, True)
+        learner.add(o, fined, -1.0, o, True)
+    learner.end_episode(False)
+    with th.no_grad():
+        before = learner.model.actor(th.as_tensor(states)).numpy()
+    for _ in range(100):  # the critic learns what each action earns as the actor follows it
+        learner.train(4)
+    with th.no_grad():
+        after = learner.model.actor(th.as_tensor(states)).numpy()
+    assert learner.own_imitation_updates == 400
+    assert np.abs(after - paid).mean() < 0.5 * np.abs(before - paid).mean()
+    assert after.mean() > 0.3, after.mean()
+
+
+def test_correlated_exploration_noise_has_its_std_and_correlation_and_a_gripper_std_of_its_own(
+) -> None:  # fmt: skip
+    """AR(1) noise: unit-variance steps scaled per component (the gripper, last, by its own
+    std), correlated ``exp(-1 / corr_steps)`` from one step to the next; white noise is not."""
+    zip_path, _ = _ddpg_source()
+    from sim2real.train.algos import get_algo
+
+    model = get_algo("ddpg").cls.load(  # type: ignore[attr-defined]
+        str(zip_path), device="cpu", custom_objects={"buffer_size": 1}
+    )
+    kind, arrays = actor_arrays(model)
+    shapes = [a.shape for a in arrays]
+    # small stds: the clip to [-1, 1] leaves the noise whole
+    obs = np.zeros(24, np.float32)
+    lag1 = {}
+    for corr in (0.0, 10.0):
+        actor = NumpyActor(kind, shapes, flatten(arrays), None, 0.02, corr, 0.05)
+        rng = np.random.default_rng(8)
+        base = actor.act(obs)
+        noise = np.stack([actor.explore(obs, rng) - base for _ in range(4000)])
+        assert noise[:, :2].std() == pytest.approx(0.02, rel=0.15)
+        assert noise[:, 2].std() == pytest.approx(0.05, rel=0.15)  # the last: the "gripper"
+        lag1[corr] = float(np.corrcoef(noise[:-1, 0], noise[1:, 0])[0, 1])
+    assert abs(lag1[0.0]) < 0.1
+    assert lag1[10.0] == pytest.approx(np.exp(-0.1), abs=0.05)
