@@ -61,6 +61,26 @@ def _plot(curves: dict[int, list[dict[str, Any]]], target: float | None, path: P
     plt.close(fig)
 
 
+def _finished_seeds(out: Path, tag: str) -> dict[int, list[dict[str, Any]]]:
+    """The evaluation blocks of finished runs ``{tag}-s<seed>`` under ``out``."""
+    import json
+
+    from sim2real.evaluate.stats import wilson_interval
+
+    curves: dict[int, list[dict[str, Any]]] = {}
+    for path in sorted(out.glob(f"{tag}-s*/finetune.json")):
+        seed = path.parent.name.removeprefix(f"{tag}-s")
+        state = json.loads(path.read_text())
+        if not seed.isdigit() or not state.get("finished"):
+            continue
+        curves[int(seed)] = [
+            {"arm_min": b["arm_min"], "success": b["successes"] / b["n"],
+             "wilson95": wilson_interval(b["successes"], b["n"])}
+            for b in state["evals"] if b["n"]
+        ]  # fmt: skip
+    return curves
+
+
 def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, float]:
     """The same backend and env stepped by the exported policy with no learner at all: the
     loop's timing under this run's load, for the ratio against the timing while learning."""
@@ -114,6 +134,7 @@ def main() -> None:
     ap.add_argument("--plant", default="hard", help="mock plant preset or YAML")
     ap.add_argument("--minutes", type=float, default=5.0, help="arm minutes per seed")
     ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--seed-start", type=int, default=0, help="the first seed (runs in turn)")
     ap.add_argument("--algo", default=None)
     ap.add_argument("--mix-sim-buffer", action="store_true")
     ap.add_argument("--utd", type=float, default=LEARNER_DEFAULTS["utd"])
@@ -156,7 +177,7 @@ def main() -> None:
     tag = f"{Path(args.policy).name}-{args.plant}{'-mix' if args.mix_sim_buffer else ''}"
     tag += "" if args.actor_update == "critic" else f"-{args.actor_update}"
     curves: dict[int, list[dict[str, Any]]] = {}
-    for seed in range(args.seeds):
+    for seed in range(args.seed_start, args.seed_start + args.seeds):
         out = args.out / f"{tag}-s{seed}"
         if out.exists():
             shutil.rmtree(out)
@@ -205,6 +226,9 @@ def main() -> None:
              env_steps=summary["env_steps"], learner_updates=summary["learner_updates"],
              actor_weight_updates=summary["actor_weight_updates"], safety=summary["safety"],
              stopped=summary["stopped"], sim_success=sim_success, **common)  # fmt: skip
+    # the curve of every seed of this setting under --out, this invocation's and earlier ones'
+    # (each seed's folder is remade when that seed runs): seeds can run in separate invocations
+    curves = {**_finished_seeds(args.out, tag), **curves}
     png = args.out / f"{tag}.png"
     target = None if sim_success is None else 0.9 * float(sim_success)
     _plot(curves, target, png, f"{args.policy} on the {args.plant} plant (mock arm)")
