@@ -17,6 +17,7 @@ learner's updates, the safety stats; then the learning-curve PNG path (matplotli
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import shutil
@@ -61,17 +62,30 @@ def _plot(curves: dict[int, list[dict[str, Any]]], target: float | None, path: P
     plt.close(fig)
 
 
-def _finished_seeds(out: Path, tag: str) -> dict[int, list[dict[str, Any]]]:
-    """The evaluation blocks of finished runs ``{tag}-s<seed>`` under ``out``."""
-    import json
+SETTING_FILE = "bench_setting.json"  # a seed's run folder: the bench setting that made it
 
+
+def _setting(common: dict[str, Any]) -> dict[str, Any]:
+    """What makes two seeds' curves comparable: every option, not when or where they ran."""
+    return {k: v for k, v in common.items() if k not in ("date", "machine")}
+
+
+def _finished_seeds(
+    out: Path, tag: str, setting: dict[str, Any]
+) -> dict[int, list[dict[str, Any]]]:
+    """The evaluation blocks of finished runs ``{tag}-s<seed>`` under ``out`` made with the
+    same ``setting``."""
     from sim2real.evaluate.stats import wilson_interval
 
+    want = json.loads(json.dumps(setting, sort_keys=True))
     curves: dict[int, list[dict[str, Any]]] = {}
     for path in sorted(out.glob(f"{tag}-s*/finetune.json")):
         seed = path.parent.name.removeprefix(f"{tag}-s")
+        made_by = path.with_name(SETTING_FILE)
+        if not seed.isdigit() or not made_by.is_file() or json.loads(made_by.read_text()) != want:
+            continue
         state = json.loads(path.read_text())
-        if not seed.isdigit() or not state.get("finished"):
+        if not state.get("finished"):
             continue
         curves[int(seed)] = [
             {"arm_min": b["arm_min"], "success": b["successes"] / b["n"],
@@ -205,6 +219,7 @@ def main() -> None:
         wall_s = time.monotonic() - t0
         # what the learner used: the defaults where the options were left unset
         common.update(relabel=summary["relabel"], noise_std=summary["noise_std"])
+        (out / SETTING_FILE).write_text(json.dumps(_setting(common), sort_keys=True))
         curves[seed] = summary["evals"]
         for block in summary["evals"]:
             emit("finetune_eval_success", block["success"], "fraction", seed=seed,
@@ -228,7 +243,7 @@ def main() -> None:
              stopped=summary["stopped"], sim_success=sim_success, **common)  # fmt: skip
     # the curve of every seed of this setting under --out, this invocation's and earlier ones'
     # (each seed's folder is remade when that seed runs): seeds can run in separate invocations
-    curves = {**_finished_seeds(args.out, tag), **curves}
+    curves = {**_finished_seeds(args.out, tag, _setting(common)), **curves}
     png = args.out / f"{tag}.png"
     target = None if sim_success is None else 0.9 * float(sim_success)
     _plot(curves, target, png, f"{args.policy} on the {args.plant} plant (mock arm)")

@@ -472,12 +472,13 @@ class ArmBase(ABC):
         A measured actuator has arrived when it reads within ``tolerance_rad`` (default:
         ``arrival_tolerance_rad(spec)``, from the servo figures, which sysid's fitted spec
         carries). One that reads its own command cannot be seen arriving: it has arrived when
-        its reading is there and the servo model's time for the move has passed, which is
-        logged. An arm that stops short (droop, a wider dead band than the spec says) but within
-        ``off_pose_limit_rad(spec)`` is warned about and returned: it works, a little off. One
-        that stops further away, is still away at ``timeout_s``, or stalls, is held and parked
-        slowly (``HardwareError``/``StallError`` say how it ended; torque goes off only where
-        the arm could not move)."""
+        its reading is there and the servo model's time for the move has passed (from the
+        first command, and from the last one that moved it: a host running late sends late),
+        which is logged. An arm that stops short (droop, a wider dead band than the spec says)
+        but within ``off_pose_limit_rad(spec)`` is warned about and returned: it works, a
+        little off. One that stops further away, is still away at ``timeout_s``, or stalls, is
+        held and parked slowly (``HardwareError``/``StallError`` say how it ended; torque goes
+        off only where the arm could not move)."""
         target = self.safety.clip_to_limits(self.safety.check_shape(target_rad))
         outside = self.spec.workspace_violation(target[: self.spec.n_joints])
         if outside:  # the guard would hold it short: say so now, not after the timeout
@@ -537,11 +538,11 @@ class ArmBase(ABC):
         deadline = start + timeout_s
         next_t = start
         prev_sent: np.ndarray | None = None
-        # the last command that moved the targets, when it went out, and the model's time from
-        # the command before it: a host that ran late sent its steps late, and the horn that
-        # follows them arrives late too
-        changed_at = start
-        before_change = start_state.positions_rad
+        # per actuator: when the last command that moved it went out, and where it was sent
+        # before that; the model's time from there is what its horn still needs (a host that
+        # ran late sent its steps late, and the horn that follows them arrives late too)
+        changed_at = np.full(spec.n_actuators, start)
+        before_change = start_state.positions_rad.copy()
         tail_s: np.ndarray | None = None
         best = np.full(spec.n_actuators, np.inf)
         last_progress_t = start
@@ -567,16 +568,21 @@ class ArmBase(ABC):
                 best[:] = np.inf
                 last_progress_t = now
                 if prev_sent is not None:
-                    changed_at, before_change, tail_s = sent_at, prev_sent, None
+                    moved = sent != prev_sent
+                    changed_at = np.where(moved, sent_at, changed_at)
+                    before_change = np.where(moved, prev_sent, before_change)
+                    tail_s = None
                 prev_sent = sent
             else:
                 if tail_s is None:
-                    tail_s = arrival_time_s(
-                        spec, before_change, target, tol, command_speed_rad_s=max_speed_rad_s
-                    )
+                    tail_s = np.zeros(spec.n_actuators)
+                    if np.any(~felt):  # only a joint that reads its command waits for it
+                        tail_s = arrival_time_s(
+                            spec, before_change, target, tol, command_speed_rad_s=max_speed_rad_s
+                        )
                 waited = (now - start >= model_s) & (now - changed_at >= tail_s)
                 if np.all((err <= tol) & (felt | waited)):
-                    self._say_unfelt(~felt, model_s)
+                    self._say_unfelt(~felt, np.maximum(model_s, changed_at - start + tail_s))
                     return state, ""
                 improved = err < best - progress_rad  # against the last progress, so a slow
                 if np.any(improved & felt):  # but moving arm adds up to progress in the window

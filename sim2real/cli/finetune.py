@@ -80,11 +80,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--actor-update", choices=sorted(ACTOR_UPDATES), default="critic",
         help="how the actor learns: 'critic' follows the critic's gradient (DDPG/TD3's own "
-        "update); 'success' imitates the arm's own successful episodes while the critic learns",
+        "update); 'success' imitates the arm's own successful episodes; 'advantage' imitates "
+        "every action taken, weighted by the critic's advantage (AWAC); the critic learns in all",
     )  # fmt: skip
     parser.add_argument(
         "--imitation-ratio", type=float, default=1.0,
-        help="with --actor-update success: imitation minibatches per gradient step",
+        help="with --actor-update success or advantage: imitation minibatches per gradient step",
     )  # fmt: skip
     parser.add_argument("--publish-every", type=int, default=20, help="env steps per weight push")
     parser.add_argument("--batch-size", type=int, default=None)

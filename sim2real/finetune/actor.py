@@ -168,7 +168,7 @@ class NumpyActor:
         if log_std is None:
             std = np.full(out.shape, self.noise_std)
             if self.gripper_noise_std is not None:
-                std[-1] = self.gripper_noise_std
+                std[..., -1] = self.gripper_noise_std
             fresh = rng.standard_normal(out.shape)
             rho = self.noise_rho
             if self._noise is None or rho == 0.0:

@@ -89,8 +89,8 @@ class LearnerConfig:
     anchor_ratio: float = 0.0
     anchor_zip: str | None = None  # the source's model (a resumed run's model_zip is its own)
     # how the actor learns (``ACTOR_UPDATES``): "critic", the algorithm's own gradient through
-    # the critic; "success", regression on the actions of the arm's own successful episodes
-    # (the critic still learns, so a later run can follow it)
+    # the critic; "success", regression on the actions of the arm's own successful episodes;
+    # "advantage", on every action taken, weighted by the critic's advantage (AWAC)
     actor_update: str = "critic"
     imitation_ratio: float = 1.0  # "success", "advantage": imitation minibatches per step
     extra: dict[str, Any] = field(default_factory=dict)
@@ -272,9 +272,10 @@ class Learner:
             self._load_successes(cfg.replay_npz)
         self._anchor: Any = None  # the source actor, frozen
         self._anchor_debt = 0.0  # imitation minibatches owed (the ratio's fractions)
-        if cfg.actor_update == "success" and self.kind != "deterministic":
+        if cfg.actor_update != "critic" and self.kind != "deterministic":
             raise LearnerError(
-                f"--actor-update success needs a deterministic actor, not {self.kind}"
+                f"--actor-update {cfg.actor_update} needs a deterministic actor (DDPG/TD3), "
+                f"not {self.kind}"
             )
         if cfg.anchor_ratio > 0:
             if self.kind != "deterministic":
@@ -322,8 +323,8 @@ class Learner:
     def train(self, steps: int) -> None:
         """``steps`` gradient steps; before ``actor_starts`` online transitions, the critic's
         only (its target follows by Polyak averaging, the actor and its target stay put). With
-        ``actor_update="success"`` the critic learns alone throughout, and the actor imitates
-        the successful episodes."""
+        ``actor_update`` "success" or "advantage" the critic learns alone throughout, and the
+        actor imitates the successful episodes, or every action by its advantage."""
         model = self.model
         if self.cfg.actor_update != "critic" and hasattr(model, "policy_delay"):
             self._critic_only(steps, follow_actor=True)
@@ -384,7 +385,8 @@ class Learner:
         (AWAC, Nair et al. 2020): the actor regresses on every action taken, each weighted by
         ``exp(A / std(A))`` (at most ``AWR_MAX_WEIGHT``), A = Q(s, a) - Q(s, actor(s)) from the
         critic learning on the arm. It moves only towards actions the arm took, so a critic fitted
-        on minutes of data cannot pull it where no data is."""
+        on minutes of data cannot pull it where no data is (with ``--mix-sim-buffer``, half of each
+        batch is the simulator's)."""
         import torch as th
 
         self._success_debt += self.cfg.imitation_ratio * steps
@@ -395,7 +397,8 @@ class Learner:
             obs, taken = batch.observations, batch.actions
             with th.no_grad():
                 adv = critic.q1_forward(obs, taken) - critic.q1_forward(obs, actor(obs))
-                weight = th.exp(adv / (adv.std() + 1e-6)).clamp(max=AWR_MAX_WEIGHT)
+                scale = adv.std(unbiased=False) + 1e-6
+                weight = th.exp(adv / scale).clamp(max=AWR_MAX_WEIGHT)
             err = ((actor(obs) - taken) ** 2).sum(dim=-1, keepdim=True)
             loss = (weight * err).mean()
             actor.optimizer.zero_grad()

@@ -75,7 +75,7 @@ class FinetuneOptions:
     # (DAGGER_ANCHOR_RATIO where it was trained with a DAgger anchor, else none)
     anchor: float | None = None
     actor_update: str = "critic"  # ``learner.ACTOR_UPDATES``
-    imitation_ratio: float = 1.0  # "success": imitation minibatches per gradient step
+    imitation_ratio: float = 1.0  # "success", "advantage": imitation minibatches per step
     publish_every: int = 20  # env steps between weight publications
     batch_size: int | None = None
     learner_nice: int = 10
@@ -176,6 +176,10 @@ class _Run:
         )
         self.relabel = default_ratio(self.src.config) if fo.relabel is None else fo.relabel
         self.anchor = default_anchor(self.src.config) if fo.anchor is None else fo.anchor
+        if fo.gripper_noise_std is not None and spec.gripper is None:
+            raise ConfigError(
+                f"--gripper-noise-std {fo.gripper_noise_std:g}: arm {spec.name!r} has no gripper"
+            )
         self.dir = FinetuneDir(fo.out)
         opts = fo.deploy
         plant = None if opts.plant is None else str(opts.plant)
