@@ -76,6 +76,9 @@ def test_resume_without_a_checkpoint_and_a_busy_out(
         ("--actor-starts", "-5"),
         ("--learning-rate", "2"),
         ("--noise-std", "1.5"),
+        ("--imitation-ratio", "0"),
+        ("--noise-corr-steps", "-1"),
+        ("--gripper-noise-std", "3"),
     ],
 )
 def test_bad_numbers_and_backends(
