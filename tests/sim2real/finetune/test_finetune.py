@@ -62,7 +62,7 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.realtime  # ~40 s idle: two mock runs with a learner process each, then export
-def test_mock_finetune_learns_within_limits_and_resume_continues(
+def test_mock_finetune_learns_within_limits_and_leaves_a_run_directory(
     tmp_path: Path, spec: ArmSpec, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out, dataset = tmp_path / "ft", tmp_path / "ds"
@@ -117,16 +117,6 @@ def test_mock_finetune_learns_within_limits_and_resume_continues(
     shaped = log["reward"] - 0.5 * np.sum((acts - prev) ** 2, axis=1)
     assert np.allclose(replay["rewards"], shaped, atol=1e-5)
     assert not np.any(replay["dones"])  # reach never terminates: truncation bootstraps
-
-    # resume continues the counters (steps and episodes go on, updates too), not restart
-    second = finetune(_options(out, resume=True), spec)
-    assert second.episodes == 2 and second.episodes_this_run == 1
-    assert second.env_steps > steps
-    assert second.learner_updates > first.learner_updates
-    assert (out / "episodes" / "episode_00001.npz").is_file()
-    state = json.loads((out / "finetune.json").read_text())
-    assert state["segments"] == 2 and state["env_steps"] == second.env_steps
-    assert [e["episode"] for e in state["episode_log"]] == [0, 1]
 
     # the first run's episode as a LeRobot dataset, read back
     capsys.readouterr()
@@ -304,7 +294,7 @@ def test_sigkill_mid_finetune_the_learner_dies_and_resume_loses_at_most_one_epis
     assert summary["env_steps"] > state["env_steps"]
 
 
-def test_pick_finetunes_from_the_shipped_ddpg_paid_its_shaping_from_percepts(
+def test_pick_finetunes_from_the_shipped_ddpg_paid_its_shaping_from_percepts_and_resumes(
     tmp_path: Path, spec: ArmSpec
 ) -> None:
     """pick-ddpg learns on SimArm's MuJoCo: the learner's rewards are the env's (goal term plus
@@ -338,6 +328,18 @@ def test_pick_finetunes_from_the_shipped_ddpg_paid_its_shaping_from_percepts(
     d = np.linalg.norm(goal_delta[1:], axis=1)  # a step's reward is on the next observation
     goal_term = np.asarray(REWARDS[TASKS["pick"].default_reward](d, d < 0.02))
     assert np.max(np.abs(logs[0]["reward"][:-1] - goal_term)) > 0.05
+
+    # resume continues the counters (steps, episodes and updates go on), not restart, and the
+    # learner takes the online transitions back
+    second = finetune(_options(out, policy="pick-ddpg", deploy=sim, resume=True), spec)
+    assert second.episodes == 3 and second.episodes_this_run == 1
+    assert second.env_steps > summary.env_steps
+    assert second.learner_updates >= summary.learner_updates
+    assert (out / "episodes" / "episode_00002.npz").is_file()
+    state = json.loads((out / "finetune.json").read_text())
+    assert state["segments"] == 2 and state["env_steps"] == second.env_steps
+    assert [e["episode"] for e in state["episode_log"]] == [0, 1, 2]
+    assert state["online_transitions"] == second.env_steps
 
 
 @pytest.mark.parametrize(
