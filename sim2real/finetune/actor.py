@@ -119,8 +119,10 @@ class NumpyActor:
         # DDPG/TD3 exploration: Gaussian, white (0 steps) or AR(1) with this correlation time,
         # the last action component (a gripper) with a std of its own where given
         self.noise_rho = math.exp(-1.0 / noise_corr_steps) if noise_corr_steps > 0 else 0.0
+        self._fresh_gain = math.sqrt(1.0 - self.noise_rho**2)
         self.gripper_noise_std = gripper_noise_std
         self._noise: np.ndarray | None = None
+        self._std: np.ndarray | None = None  # per action component, built on the first explore
         self.arrays: list[np.ndarray] = []
         self.load_flat(flat)
 
@@ -166,16 +168,16 @@ class NumpyActor:
     def explore(self, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         out, log_std = self._heads(obs)
         if log_std is None:
-            std = np.full(out.shape, self.noise_std)
-            if self.gripper_noise_std is not None:
-                std[..., -1] = self.gripper_noise_std
+            if self._std is None or self._std.shape != out.shape:
+                self._std = np.full(out.shape, self.noise_std)
+                if self.gripper_noise_std is not None:
+                    self._std[..., -1] = self.gripper_noise_std
             fresh = rng.standard_normal(out.shape)
-            rho = self.noise_rho
-            if self._noise is None or rho == 0.0:
+            if self._noise is None or self.noise_rho == 0.0:
                 self._noise = fresh
             else:  # AR(1): unit variance, correlation rho per step
-                self._noise = rho * self._noise + math.sqrt(1.0 - rho * rho) * fresh
-            noisy = out + std * self._noise
+                self._noise = self.noise_rho * self._noise + self._fresh_gain * fresh
+            noisy = out + self._std * self._noise
             return np.clip(noisy, -1.0, 1.0).astype(np.float32)
         sample = out + np.exp(log_std) * rng.standard_normal(out.shape)
         return np.tanh(sample).astype(np.float32)

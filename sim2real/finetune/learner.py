@@ -23,6 +23,7 @@ import io
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -266,7 +267,13 @@ class Learner:
         self._good_rows: np.ndarray | None = None  # np.flatnonzero(self._good), cached
         self._episode_rows: list[int] = []
         self.own_imitation_updates = 0
-        self._success_debt = 0.0
+        self._own_debt = 0.0  # own-data imitation minibatches owed (the ratio's fractions)
+        # how the actor learns from the arm's own data, by ``actor_update`` (None: the critic)
+        self._own_imitation = {
+            "critic": None,
+            "success": self._imitate_successes,
+            "advantage": self._imitate_advantage,
+        }[cfg.actor_update]
         self._rng = np.random.default_rng(cfg.seed)
         if cfg.replay_npz is not None:
             self._load_successes(cfg.replay_npz)
@@ -326,13 +333,10 @@ class Learner:
         ``actor_update`` "success" or "advantage" the critic learns alone throughout, and the
         actor imitates the successful episodes, or every action by its advantage."""
         model = self.model
-        if self.cfg.actor_update != "critic" and hasattr(model, "policy_delay"):
+        if self._own_imitation is not None:  # a deterministic actor: DDPG/TD3 (checked)
             self._critic_only(steps, follow_actor=True)
             self._imitate(steps)
-            if self.cfg.actor_update == "success":
-                self._imitate_successes(steps)
-            else:
-                self._imitate_advantage(steps)
+            self._own_imitation(steps)
             return
         if self.buffer.size() >= self.cfg.actor_starts or not hasattr(model, "policy_delay"):
             model.policy_delay = self.policy_delay
@@ -366,18 +370,15 @@ class Learner:
             return
         import torch as th
 
-        self._success_debt += self.cfg.imitation_ratio * steps
-        n, self._success_debt = int(self._success_debt), self._success_debt % 1.0
-        actor = self.model.actor
-        b = self.buffer
-        for _ in range(n):
+        n, self._own_debt = _owed(self._own_debt, self.cfg.imitation_ratio, steps)
+        actor, b = self.model.actor, self.buffer
+
+        def loss() -> Any:
             pick = rows[self._rng.integers(len(rows), size=self.batch_size)]
             obs = b.to_torch(b.observations[pick, 0])
-            taken = b.to_torch(b.actions[pick, 0])
-            loss = th.nn.functional.mse_loss(actor(obs), taken)
-            actor.optimizer.zero_grad()
-            loss.backward()
-            actor.optimizer.step()
+            return th.nn.functional.mse_loss(actor(obs), b.to_torch(b.actions[pick, 0]))
+
+        self._actor_steps(n, loss)
         self.own_imitation_updates += n
 
     def _imitate_advantage(self, steps: int) -> None:
@@ -389,10 +390,10 @@ class Learner:
         batch is the simulator's)."""
         import torch as th
 
-        self._success_debt += self.cfg.imitation_ratio * steps
-        n, self._success_debt = int(self._success_debt), self._success_debt % 1.0
+        n, self._own_debt = _owed(self._own_debt, self.cfg.imitation_ratio, steps)
         actor, critic = self.model.actor, self.model.critic
-        for _ in range(n):
+
+        def loss() -> Any:
             batch = self.buffer.sample(self.batch_size)
             obs, taken = batch.observations, batch.actions
             with th.no_grad():
@@ -400,10 +401,9 @@ class Learner:
                 scale = adv.std(unbiased=False) + 1e-6
                 weight = th.exp(adv / scale).clamp(max=AWR_MAX_WEIGHT)
             err = ((actor(obs) - taken) ** 2).sum(dim=-1, keepdim=True)
-            loss = (weight * err).mean()
-            actor.optimizer.zero_grad()
-            loss.backward()
-            actor.optimizer.step()
+            return (weight * err).mean()
+
+        self._actor_steps(n, loss)
         self.own_imitation_updates += n
 
     def _imitate(self, steps: int) -> None:
@@ -414,18 +414,26 @@ class Learner:
             return
         import torch as th
 
-        self._anchor_debt += self.cfg.anchor_ratio * steps
-        n, self._anchor_debt = int(self._anchor_debt), self._anchor_debt % 1.0
+        n, self._anchor_debt = _owed(self._anchor_debt, self.cfg.anchor_ratio, steps)
         actor = self.model.actor
-        for _ in range(n):
+
+        def loss() -> Any:
             obs = self.buffer.sample(self.batch_size).observations
             with th.no_grad():
                 target = self._anchor(obs)
-            loss = th.nn.functional.mse_loss(actor(obs), target)
-            actor.optimizer.zero_grad()
-            loss.backward()
-            actor.optimizer.step()
+            return th.nn.functional.mse_loss(actor(obs), target)
+
+        self._actor_steps(n, loss)
         self.imitation_updates += n
+
+    def _actor_steps(self, n: int, loss: Callable[[], Any]) -> None:
+        """``n`` steps of the actor's own optimiser, each on a fresh minibatch's ``loss()``."""
+        optimizer = self.model.actor.optimizer
+        for _ in range(n):
+            value = loss()
+            optimizer.zero_grad()
+            value.backward()
+            optimizer.step()
 
     @staticmethod
     def action_rate_penalty(config: dict[str, Any]) -> float:
@@ -511,6 +519,12 @@ class Learner:
             env.close()
         log.info("sim buffer: %d transitions in %.1f s", sim.size(), time.monotonic() - t0)
         return sim
+
+
+def _owed(debt: float, ratio: float, steps: int) -> tuple[int, float]:
+    """Minibatches due for ``ratio`` per gradient step over ``steps``, and the fraction carried."""
+    total = debt + ratio * steps
+    return int(total), total % 1.0
 
 
 class _Weights:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -22,6 +23,16 @@ def _ddpg_source() -> tuple[Path, dict[str, object]]:
     assert ckpt is not None
     stats = json.loads(ckpt[1].read_text())
     return ckpt[0], stats
+
+
+def _reach_ddpg_config(**kw: Any) -> LearnerConfig:
+    """A learner on the shipped ``reach-ddpg`` (24 observations, 3 actions)."""
+    zip_path, stats = _ddpg_source()
+    base: dict[str, Any] = {
+        "algo": "ddpg", "source_algo": "ddpg", "model_zip": str(zip_path),
+        "obs_stats": stats["vecnormalize"],
+    }  # fmt: skip
+    return LearnerConfig(**{**base, **kw})
 
 
 def test_numpy_actor_matches_the_sb3_ddpg_actor_with_frozen_normalisation() -> None:
@@ -241,12 +252,7 @@ def test_success_imitation_learns_only_from_successful_episodes_and_resumes_with
     rows were successful, so a resumed run goes on imitating them."""
     from dataclasses import replace
 
-    zip_path, stats = _ddpg_source()
-    cfg = LearnerConfig(
-        algo="ddpg", source_algo="ddpg", model_zip=str(zip_path),
-        obs_stats=stats["vecnormalize"],  # type: ignore[arg-type]
-        batch_size=32, actor_update="success", imitation_ratio=2.0,
-    )  # fmt: skip
+    cfg = _reach_ddpg_config(batch_size=32, actor_update="success", imitation_ratio=2.0)
     rng = np.random.default_rng(6)
     good, bad = rng.normal(size=(2, 40, 24)).astype(np.float32)
 
@@ -305,13 +311,9 @@ def test_advantage_weighted_imitation_follows_the_better_of_the_actions_taken() 
     """``actor_update="advantage"``: two actions taken on the same states, one paid and one
     fined; once the critic has learned that, the actor moves towards the paid one (plain
     imitation of both would sit between them)."""
-    zip_path, stats = _ddpg_source()
-    cfg = LearnerConfig(
-        algo="ddpg", source_algo="ddpg", model_zip=str(zip_path),
-        obs_stats=stats["vecnormalize"],  # type: ignore[arg-type]
-        batch_size=64, actor_update="advantage", imitation_ratio=1.0,
-    )  # fmt: skip
-    learner = Learner(cfg)
+    learner = Learner(
+        _reach_ddpg_config(batch_size=64, actor_update="advantage", imitation_ratio=1.0)
+    )
     rng = np.random.default_rng(7)
     states = rng.normal(size=(64, 24)).astype(np.float32)
     paid, fined = np.full(3, 0.8, np.float32), np.full(3, -0.8, np.float32)
