@@ -12,6 +12,14 @@ learner's updates, the safety stats; then the learning-curve PNG path (matplotli
 
     nice -n 5 .venv/bin/python bench/finetune_mock.py reach-ddpg --plant hard --minutes 5
     nice -n 5 .venv/bin/python bench/finetune_mock.py reach-ddpg --plant hard --minutes 15 --seeds 3
+
+``--adapted DIR`` fine-tunes what ``sim2real adapt`` made (its ``finetune/`` run with its fitted spec
+and joint calibration) and counts the arm time adapt's identification took (its ``record``
+stage) in the budget and on the curve, so ``--minutes`` stays the whole arm time that learning
+used. Adapt's zero-shot and evaluation deploys are measurements, not counted.
+
+    nice -n 5 .venv/bin/python bench/finetune_mock.py --adapted runs/adapt-pick-ddpg-hard \
+        --plant hard --minutes 15 --eval-every 3 --eval-episodes 20 --actor-update advantage
 """
 
 from __future__ import annotations
@@ -71,10 +79,10 @@ def _setting(common: dict[str, Any]) -> dict[str, Any]:
 
 
 def _finished_seeds(
-    out: Path, tag: str, setting: dict[str, Any]
+    out: Path, tag: str, setting: dict[str, Any], offset_min: float = 0.0
 ) -> dict[int, list[dict[str, Any]]]:
     """The evaluation blocks of finished runs ``{tag}-s<seed>`` under ``out`` made with the
-    same ``setting``."""
+    same ``setting``, their arm minutes shifted by ``offset_min`` (adapt's identification)."""
     from sim2real.evaluate.stats import wilson_interval
 
     want = json.loads(json.dumps(setting, sort_keys=True))
@@ -88,11 +96,36 @@ def _finished_seeds(
         if not state.get("finished"):
             continue
         curves[int(seed)] = [
-            {"arm_min": b["arm_min"], "success": b["successes"] / b["n"],
+            {"arm_min": b["arm_min"] + offset_min, "success": b["successes"] / b["n"],
              "wilson95": wilson_interval(b["successes"], b["n"])}
             for b in state["evals"] if b["n"]
         ]  # fmt: skip
     return curves
+
+
+def _adapted(folder: Path, plant: str) -> dict[str, Any]:
+    """What ``sim2real adapt --out FOLDER`` left for a fine-tune: its run, fitted spec, joint
+    calibration, the source policy's name and the arm minutes its recording took."""
+    status_path = folder / "status.json"
+    if not status_path.is_file():
+        raise SystemExit(f"error: --adapted {folder}: no status.json (not an adapt --out folder)")
+    status = json.loads(status_path.read_text())
+    missing = [s for s in ("fit", "finetune") if s not in status.get("stages_done", [])]
+    if missing:
+        raise SystemExit(f"error: --adapted {folder}: stages {missing} not done")
+    if status.get("plant") != plant:
+        raise SystemExit(f"error: --adapted {folder} was fitted on plant {status.get('plant')!r}, "
+                         f"not --plant {plant!r}")  # fmt: skip
+    record = status.get("figures", {}).get("record", {})
+    return {
+        "policy": str(folder / "finetune"),
+        "spec": folder / "fitted.yaml",
+        "joint_calibration": folder / "joint_calibration.yaml",
+        "source": status["policy"],
+        # the record stage's wall clock: the arm's excitation and sweep plus its start-up (an
+        # upper bound on arm time); 0 where adapt took --logs recorded earlier
+        "identification_min": float(record.get("stage_wall_s", 0.0)) / 60.0,
+    }
 
 
 def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, float]:
@@ -166,6 +199,10 @@ def main() -> None:
     ap.add_argument("--watchdog-s", type=float, default=None, help="mock: relaxed watchdog")
     ap.add_argument("--spec", type=Path, default=None, help="an adapted policy's fitted spec")
     ap.add_argument("--joint-calibration", type=Path, default=None, help="and its calibration")
+    ap.add_argument(
+        "--adapted", type=Path, default=None,
+        help="an adapt --out folder: fine-tune its run, with its fitted spec and calibration",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("runs/bench-finetune"))
     ap.add_argument(
         "--reference-episodes", type=int, default=10,
@@ -173,8 +210,17 @@ def main() -> None:
     )  # fmt: skip
     args = ap.parse_args()
 
+    offset_min, source = 0.0, args.policy
+    if args.adapted is not None:
+        adapted = _adapted(args.adapted, args.plant)
+        args.policy, args.spec = adapted["policy"], adapted["spec"]
+        args.joint_calibration, source = adapted["joint_calibration"], adapted["source"]
+        offset_min = adapted["identification_min"]
+        if not args.minutes > offset_min:
+            raise SystemExit(f"error: --minutes {args.minutes} leaves nothing after adapt's "
+                             f"{offset_min:.2f} identification minutes")  # fmt: skip
     spec = load_spec(args.spec)
-    card = shipped().get(args.policy)
+    card = shipped().get(source)
     sim_success = None
     if card is not None:
         sim_success = getattr(card, "figures", {}).get("env_success_dr_default")
@@ -184,11 +230,14 @@ def main() -> None:
         "actor_update": args.actor_update, "imitation_ratio": args.imitation_ratio,
         "anchor": args.anchor, "noise_corr_steps": args.noise_corr_steps,
         "gripper_noise_std": args.gripper_noise_std,
+        "adapted": None if args.adapted is None else args.adapted.name,
+        "identification_arm_min": round(offset_min, 3),
         "watchdog_s": args.watchdog_s or spec.safety.watchdog_timeout_s,
         "machine": f"{platform.machine()} {os.cpu_count()} cpu",
         "date": time.strftime("%Y-%m-%d"),
     }  # fmt: skip
-    tag = f"{Path(args.policy).name}-{args.plant}{'-mix' if args.mix_sim_buffer else ''}"
+    name = Path(source).name + ("-adapted" if args.adapted is not None else "")
+    tag = f"{name}-{args.plant}{'-mix' if args.mix_sim_buffer else ''}"
     tag += "" if args.actor_update == "critic" else f"-{args.actor_update}"
     curves: dict[int, list[dict[str, Any]]] = {}
     for seed in range(args.seed_start, args.seed_start + args.seeds):
@@ -207,7 +256,7 @@ def main() -> None:
         fo = FinetuneOptions(
             policy=args.policy, out=out,
             deploy=opts,
-            minutes=args.minutes, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
+            minutes=args.minutes - offset_min, algo=args.algo, mix_sim_buffer=args.mix_sim_buffer,
             utd=args.utd, learning_starts=args.learning_starts, actor_starts=args.actor_starts,
             relabel=args.relabel, noise_std=args.noise_std, keys=False, anchor=args.anchor,
             actor_update=args.actor_update, imitation_ratio=args.imitation_ratio,
@@ -220,8 +269,8 @@ def main() -> None:
         # what the learner used: the defaults where the options were left unset
         common.update(relabel=summary["relabel"], noise_std=summary["noise_std"])
         (out / SETTING_FILE).write_text(json.dumps(_setting(common), sort_keys=True))
-        curves[seed] = summary["evals"]
-        for block in summary["evals"]:
+        curves[seed] = [{**b, "arm_min": b["arm_min"] + offset_min} for b in summary["evals"]]
+        for block in curves[seed]:
             emit("finetune_eval_success", block["success"], "fraction", seed=seed,
                  arm_min=round(block["arm_min"], 3), n=block["n"], wilson95=block["wilson95"],
                  **common)  # fmt: skip
@@ -237,16 +286,17 @@ def main() -> None:
                  late_fraction_ratio=(loop["late_periods"] / max(summary["env_steps"], 1))
                  / max(ref["late_fraction"], 1e-9), **common)  # fmt: skip
         emit("finetune_run", summary["episodes"], "episodes", seed=seed,
-             arm_min=round(summary["arm_s"] / 60.0, 3), wall_min=round(wall_s / 60.0, 3),
+             arm_min=round(summary["arm_s"] / 60.0 + offset_min, 3), wall_min=round(wall_s / 60.0, 3),
              env_steps=summary["env_steps"], learner_updates=summary["learner_updates"],
              actor_weight_updates=summary["actor_weight_updates"], safety=summary["safety"],
              stopped=summary["stopped"], sim_success=sim_success, **common)  # fmt: skip
     # the curve of every seed of this setting under --out, this invocation's and earlier ones'
     # (each seed's folder is remade when that seed runs): seeds can run in separate invocations
-    curves = {**_finished_seeds(args.out, tag, _setting(common)), **curves}
+    curves = {**_finished_seeds(args.out, tag, _setting(common), offset_min), **curves}
     png = args.out / f"{tag}.png"
     target = None if sim_success is None else 0.9 * float(sim_success)
-    _plot(curves, target, png, f"{args.policy} on the {args.plant} plant (mock arm)")
+    how = f" after adapt ({offset_min:.1f} arm min identifying)" if args.adapted else ""
+    _plot(curves, target, png, f"{source}{how} on the {args.plant} plant (mock arm)")
     emit("finetune_curve_png", str(png), "path", **common)
 
 

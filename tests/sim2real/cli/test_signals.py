@@ -83,7 +83,8 @@ def test_sigterm_stops_a_mock_deployment_cleanly(
     proc = spawn(
         [sys.executable, "-m", "sim2real", "deploy", "reach-ppo", "--backend", "mock",
          "--episodes", "1000", "--steps", "10", "--log", str(log), "--json", "-v",
-         "--watchdog-s", str(scaled(10)), "--start-timeout", str(scaled(60))],
+         "--watchdog-s", str(scaled(10)), "--start-timeout", str(scaled(60)),
+         "--camera-fps", "20"],
         # judged: the signal, not the timing
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip

@@ -22,6 +22,7 @@ def test_a_mock_deployment_records_a_lerobot_dataset_with_both_cameras(
         "deploy", "reach-ppo", "--backend", "mock", "--episodes", "2", "--json",
         "--record-dataset", str(root), "--log", str(tmp_path / "log.npz"),
         "--watchdog-s", str(scaled(10)), "--start-timeout", str(scaled(60)),
+        "--camera-fps", "20",  # a frame a period (conftest's MOCK): less CPU, the same frames kept
     ]  # fmt: skip
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])

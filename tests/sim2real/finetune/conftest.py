@@ -12,8 +12,9 @@ from hardware.spec import ArmSpec, load_spec
 from sim2real.deploy.policy_io import PolicyIO, io_for
 
 # mock runs: a relaxed watchdog (pytest -n 2 on a loaded machine may run a period long: these
-# tests judge the chain, not the timing) and a generous wait for the first sighting
-MOCK = {"backend": "mock", "watchdog_s": scaled(2.0)}
+# tests judge the chain, not the timing) and a generous wait for the first sighting; the cameras
+# at the loop's rate (tests/sim2real/deploy/conftest.py says why)
+MOCK = {"backend": "mock", "watchdog_s": scaled(2.0), "camera_fps": 20.0}
 
 
 @pytest.fixture(scope="session")

@@ -22,6 +22,7 @@ def mock_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     args = [
         "deploy", "reach-ppo", "--backend", "mock", "--episodes", "1", "--log", str(log),
         "--record-dataset", str(frames), "--watchdog-s", "10", "--start-timeout", "60", "--json",
+        "--camera-fps", "20",  # a frame a period, as the dataset keeps them: less CPU
     ]  # fmt: skip
     assert main(args) == 0
     return log, frames
