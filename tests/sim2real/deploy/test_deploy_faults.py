@@ -27,7 +27,12 @@ from sim2real.deploy.runner import DeployOptions, run_policy
 from .conftest import MOCK, ik_policy  # type: ignore[import-not-found]
 
 START_S = scaled(60.0)
-pytestmark = pytest.mark.realtime
+# Slow as well (CI runs them after the main suite): five mock chains, ~40 s of a worker. The fast
+# suite keeps each fault at the HAL, on the emulator's pty (tests/hardware/test_feedback.py: a
+# jammed measured joint, a brownout under a live link), in perception (test_perception_faults.py:
+# a false plate, frozen frames) and the loop's own stops on the mock chain (test_loop.py: a
+# vanished port, cameras that stop; test_mock_arm.py, a crashed process).
+pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
 
 class FaultAt:

@@ -239,7 +239,7 @@ def test_cameras_that_stop_delivering_stop_the_run_safely(
 ) -> None:
     """The cameras hang after the 10th period (an event, not a wall-clock delay: the run is well
     under way whatever the machine's load); the freshness check stops the run, the log kept.
-    The time-based fault option (``camera_fails_after_s``) is driven in finetune/test_arm_env."""
+    The time-based fault option (``camera_fails_after_s``) is driven in finetune/test_arm_env (slow)."""
     from sim2real.deploy import session as session_mod
 
     log = tmp_path / "frozen.npz"

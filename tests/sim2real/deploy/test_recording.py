@@ -13,7 +13,11 @@ from sim2real.cli.main import main
 from sim2real.datasets.lerobot import LeRobotDataset
 
 
+# slow (CI runs it after the main suite): the viewer's test records a mock deploy's dataset with
+# both cameras in the fast suite (tests/sim2real/view/conftest.py), the writer's layout is judged
+# in tests/sim2real/datasets; this one checks two episodes' indices, fps and success flags
 @pytest.mark.realtime
+@pytest.mark.slow
 def test_a_mock_deployment_records_a_lerobot_dataset_with_both_cameras(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

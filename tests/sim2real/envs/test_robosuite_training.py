@@ -10,6 +10,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pytest
 import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.monitor import Monitor
@@ -61,6 +62,10 @@ def test_short_sac_run_on_lift_saves_loads_and_evaluates(tmp_path: Path) -> None
         eval_env.close()
 
 
+# slow (CI runs it after the main suite): six robosuite worker processes start, ~16 s of a core;
+# the fast suite keeps robosuite training in process (above) and the subprocess runner on MuJoCo
+# (tests/sim2real/train/test_train.py)
+@pytest.mark.slow
 def test_shipped_reach_preset_trains_in_worker_processes_resumes_and_evaluates(
     tmp_path: Path,
 ) -> None:

@@ -133,7 +133,10 @@ def test_the_env_runs_on_the_mock_backend_over_a_pty(
     _wait(lambda: _children() <= children, "the mock's processes end")
 
 
+# slow (CI runs it after the main suite): the loop's own stop on frozen cameras is in the fast
+# suite (tests/sim2real/deploy/test_loop.py); this is the time-based fault option through ArmEnv
 @pytest.mark.realtime
+@pytest.mark.slow
 def test_cameras_that_stop_mid_run_leave_the_arm_parked_and_torque_off(
     spec: ArmSpec, reach_io: PolicyIO
 ) -> None:

@@ -61,7 +61,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
-@pytest.mark.realtime  # ~40 s idle: two mock runs with a learner process each, then export
+@pytest.mark.realtime  # ~18 s idle: a mock episode with its learner process, export, evaluate
 def test_mock_finetune_learns_within_limits_and_leaves_a_run_directory(
     tmp_path: Path, spec: ArmSpec, capsys: pytest.CaptureFixture[str]
 ) -> None:
