@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from timescale import scaled  # type: ignore[import-not-found]
 
 from hardware.arm import (
     arrival_tolerance_rad,
@@ -117,10 +118,12 @@ def test_a_jammed_measured_joint_is_stopped_within_half_a_second_and_held(
         with pytest.raises(SafetyError, match="stopped after a fault"):
             arm.command(spec.actuator_home_rad)
         # it stays up while nobody commands: the host keeps the hold going, no device watchdog
-        # lets go under it
-        quiet_until = time.monotonic() + 2 * (spec.safety.watchdog_timeout_s + 0.5)
-        while time.monotonic() < quiet_until:
-            time.sleep(0.05)
+        # lets go under it. Waited on the device's own clock: a starved simulated chip runs
+        # slower than the wall, and a wall-clock wait could end before its watchdog was due
+        quiet_until_s = emu.now_s() + spec.safety.watchdog_timeout_s + 0.5
+        assert emu.wait_until(lambda: emu.now_s() >= quiet_until_s, scaled(30.0)), (
+            "the device's clock stopped"
+        )
         emu.sync()
         assert emu.torque_enabled().all()
         emu.jam()

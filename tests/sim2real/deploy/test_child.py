@@ -161,6 +161,7 @@ def test_the_context_exit_names_the_dead_child_over_the_error_it_caused(module: 
 
 def test_stop_kills_a_child_that_does_not_answer(module: str) -> None:
     child = _child(module)
+    child.stop_timeout_s = 0.5  # it never answers: a longer wait only ends in the same kill
     child.start()
     pid = child.pid
     assert pid is not None
