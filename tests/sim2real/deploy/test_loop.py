@@ -300,15 +300,18 @@ def test_success_is_judged_after_the_last_command_has_acted(
 
     result = run_policy(
         policy, reach_io, spec, DeployOptions(backend="sim", sim_clock="realtime"),
-        LoopConfig(episodes=2, episode_steps=steps, rate_hz=10.0),
+        LoopConfig(episodes=1, episode_steps=steps, rate_hz=10.0),
     )  # fmt: skip
-    assert len(short_of_target_m) == 2 and min(short_of_target_m) > 0.015, short_of_target_m
+    assert len(short_of_target_m) == 1 and min(short_of_target_m) > 0.015, short_of_target_m
     distances = [e.distance_m for e in result.episodes]
-    assert result.successes == 2, distances
+    assert result.successes == 1, distances
     assert max(distances) < 0.005, distances
 
 
+# slow (CI runs it after the main suite): the rig's sight of a seam's plates is judged in the fast
+# suite (test_placement.py); this is the loop drawing again on the mock chain
 @pytest.mark.realtime
+@pytest.mark.slow
 def test_trace_on_the_mock_arm_draws_again_instead_of_waiting_for_hidden_seam_plates(
     spec: ArmSpec, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -123,7 +123,10 @@ def test_fit_recovers_known_servo_parameters_within_10_percent(excitation_log: P
     assert 0.0 <= fit.latency_s < 0.005  # none where there is none
 
 
+# slow (CI runs it after the main suite): the fits on exact-time logs above and the CLI below are
+# fast; this records over a pty in real time, as a user does
 @pytest.mark.realtime
+@pytest.mark.slow
 def test_a_recording_over_a_real_pty_is_fitted_to_the_emulated_servos(tmp_path: Path) -> None:
     """The whole chain, as a user records: the excitation over a pty to the emulated Feetech bus
     (40 ms command latency) in its own process, then the fit. The log's stamps carry the
