@@ -18,7 +18,10 @@ from sim2real.train import RunDir
 TINY = ["--set", "n_envs=2", "--set", "n_steps=64", "--set", "batch_size=64", "--set", "n_epochs=1"]
 
 
+# slow (CI runs it after the main suite): a signal's checkpoint and resume are judged in the fast
+# suite on train itself (tests/sim2real/cli/test_train_cli.py), compare's files in test_compare.py
 @pytest.mark.realtime
+@pytest.mark.slow
 def test_sigterm_keeps_the_checkpoint_of_the_run_in_flight(
     tmp_path: Path, spawn: Callable[..., subprocess.Popen[str]]
 ) -> None:
