@@ -15,7 +15,7 @@ pytest.importorskip("rerun", reason="the 'view' extra (rerun-sdk) is not install
 
 @pytest.fixture(scope="session")
 def mock_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """``sim2real deploy reach-ppo --backend mock``, one episode: its log and its frames (the
+    """``sim2real deploy reach-ppo --backend mock``, one 25-period episode: its log and its frames (the
     dataset the same deploy recorded, one camera pair a period)."""
     out = tmp_path_factory.mktemp("mock")
     log, frames = out / "mock.npz", out / "frames"
@@ -23,6 +23,7 @@ def mock_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
         "deploy", "reach-ppo", "--backend", "mock", "--episodes", "1", "--log", str(log),
         "--record-dataset", str(frames), "--watchdog-s", "10", "--start-timeout", "60", "--json",
         "--camera-fps", "20",  # a frame a period, as the dataset keeps them: less CPU
+        "--steps", "25",  # half an episode: every entity still shows, in half the arm time
     ]  # fmt: skip
     assert main(args) == 0
     return log, frames
