@@ -15,8 +15,8 @@ pytest.importorskip("rerun", reason="the 'view' extra (rerun-sdk) is not install
 
 @pytest.fixture(scope="session")
 def mock_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """``sim2real deploy reach-ppo --backend mock``, one 25-period episode: its log and its frames (the
-    dataset the same deploy recorded, one camera pair a period)."""
+    """``sim2real deploy reach-ppo --backend mock``, one 25-period episode: its log and its
+    frames (the dataset the same deploy recorded, one camera pair a period)."""
     out = tmp_path_factory.mktemp("mock")
     log, frames = out / "mock.npz", out / "frames"
     args = [
