@@ -104,28 +104,36 @@ def _finished_seeds(
 
 
 def _adapted(folder: Path, plant: str) -> dict[str, Any]:
-    """What ``sim2real adapt --out FOLDER`` left for a fine-tune: its run, fitted spec, joint
-    calibration, the source policy's name and the arm minutes its recording took."""
+    """What ``sim2real adapt --out FOLDER`` left for a fine-tune, as its ``status.json`` names
+    it (``adapt.figures``): its run, fitted spec, joint calibration, the source policy's name
+    and the arm minutes its recording took."""
+    from sim2real.adapt.figures import FinetuneFigures, FitFigures, RecordFigures, StageResult
+
     status_path = folder / "status.json"
     if not status_path.is_file():
         raise SystemExit(f"error: --adapted {folder}: no status.json (not an adapt --out folder)")
     status = json.loads(status_path.read_text())
-    missing = [s for s in ("fit", "finetune") if s not in status.get("stages_done", [])]
+    missing = [s for s in ("record", "fit", "finetune") if s not in status.get("stages_done", [])]
     if missing:
         raise SystemExit(f"error: --adapted {folder}: stages {missing} not done")
     if status.get("plant") != plant:
         raise SystemExit(f"error: --adapted {folder} was fitted on plant {status.get('plant')!r}, "
                          f"not --plant {plant!r}")  # fmt: skip
-    record = status.get("figures", {}).get("record", {})
+    stage = {k: StageResult.from_json(k, status["figures"][k]) for k in ("record", "fit",
+                                                                        "finetune")}  # fmt: skip
+    fit, run = stage["fit"].figures, stage["finetune"].figures
+    assert isinstance(fit, FitFigures) and isinstance(run, FinetuneFigures)
+    record = stage["record"]
     return {
-        "policy": str(folder / "finetune"),
-        "spec": folder / "fitted.yaml",
-        "joint_calibration": folder / "joint_calibration.yaml",
+        "policy": str(folder / run.run_dir),
+        "spec": folder / fit.spec,
+        "joint_calibration": folder / fit.joint_calibration,
         "source": status["policy"],
         # the record stage's wall clock: the arm's excitation and sweep plus its start-up (an
-        # upper bound on arm time); 0 where adapt took --logs recorded earlier
-        "identification_min": float(record.get("stage_wall_s", 0.0)) / 60.0,
-    }
+        # upper bound on arm time); none where adapt took logs recorded earlier (--logs)
+        "identification_min": record.stage_wall_s / 60.0
+        if isinstance(record.figures, RecordFigures) else 0.0,
+    }  # fmt: skip
 
 
 def _reference(policy: str, spec: Any, opts: Any, episodes: int) -> dict[str, float]:
