@@ -163,11 +163,19 @@ def test_a_pwm_build_picks_through_the_mock_chain(tmp_path: Path) -> None:
     assert max(e.figures["max_lift_m"] for e in result.episodes) > 0.03
     assert any(e.figures["grasped_ever"] for e in result.episodes)
     data = np.load(log)
-    # each period reads what the last one sent: the firmware's slew covers a clamped step within
-    # the period (a read that comes a few ms early, on a loaded machine, catches it short)
+    # each period reads what the last one sent, as a rule: the firmware's slew covers a clamped
+    # step within the period. A read the emulator answers early (a loaded machine delays the
+    # command, or both arrive together) catches the slew on its way, never past it: the echo
+    # lies between what was read and what was sent since, a measured joint's droop would not.
+    res = PWM.servo.resolution_rad
+    joints, sent = data["joints_rad"], data["sent_rad"]
     same = data["episode"][1:] == data["episode"][:-1]
-    lag = np.abs(data["joints_rad"][1:][same] - data["sent_rad"][:-1][same])
-    assert np.mean(lag <= PWM.servo.resolution_rad) > 0.95 and lag.max() < 0.1, lag.max(axis=0)
+    lag = np.abs(joints[1:][same] - sent[:-1][same])
+    assert np.mean(lag <= res) > 0.8, np.mean(lag <= res)
+    before = np.where(same[:-1, None], sent[:-2], joints[1:-1])  # sent a period earlier
+    ends = np.stack([joints[1:-1], before, sent[1:-1]])[:, same[1:]]
+    read = joints[2:][same[1:]]
+    assert np.all(read >= ends.min(axis=0) - res) and np.all(read <= ends.max(axis=0) + res)
     held = data["grasped"][:-1].astype(bool) & (data["sent_rad"][:-1, -1] == 0.0) & same
     # a measured gripper would read open by the cube's width; this one reads shut
     assert held.any() and np.all(np.abs(data["joints_rad"][1:, -1][held]) < HOLD_MARGIN_RAD)
