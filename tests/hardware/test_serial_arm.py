@@ -185,7 +185,7 @@ def test_pipelined_commands_reach_the_device_once_each_in_order(
         arm.enable()
         arm.set_pipelined(True)
         assert arm.proto is not None and arm.proto.pipeline
-        for i in range(40):
+        for i in range(20):
             target = spec.actuator_home_rad + rng.uniform(-0.01, 0.01, spec.n_actuators)
             arm.command(target)
             sent.append(arm.last_sent_units.tolist())
@@ -198,7 +198,7 @@ def test_pipelined_commands_reach_the_device_once_each_in_order(
         arm.disable()
     assert [list(e.requested) for e in emu.applied("targets")] == sent
     assert stats["retries"] > 0  # the faults did hit pipelined requests
-    assert emu.stats()["device_duplicates"] > 0  # retransmissions recognised, not re-applied
+    assert emu.stats()["device_duplicates"] > 0, (stats, emu.stats())  # recognised, not re-applied
 
 
 def test_a_refused_pipelined_command_raises_at_the_next_request(

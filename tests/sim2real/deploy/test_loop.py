@@ -131,11 +131,11 @@ def test_mock_chain_reaches_targets_through_cameras_and_serial_bytes(
     log = tmp_path / "mock.npz"
     result = run_policy(
         ik_policy(spec, reach_io.builder, reach_io.decoder), reach_io, spec,
-        DeployOptions(**MOCK), LoopConfig(episodes=2, start_timeout_s=START_S), log_path=log,
+        DeployOptions(**MOCK), LoopConfig(episodes=1, start_timeout_s=START_S), log_path=log,
     )  # fmt: skip
     arm = result.arm
     assert result.stopped_early is None
-    assert result.successes >= 1, [e.distance_m for e in result.episodes]
+    assert result.successes == 1, [e.distance_m for e in result.episodes]
     assert arm.emulator.applied("targets"), "the emulator applied no command"
     data = np.load(log)
     seen = data["true_tool_m"]

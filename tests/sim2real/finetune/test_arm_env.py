@@ -272,7 +272,8 @@ def test_on_a_world_nobody_simulates_reach_has_a_virtual_target_and_a_reset_key(
     master, keys = pty_keys
     os.write(master, b"r")  # the person has already set the table
     _wait(lambda: bool(keys.interventions), "the reset key")
-    env = ArmEnv(reach_io, spec, DeployOptions(backend="sim-camera-world"), human=keys)
+    opts = DeployOptions(backend="sim-camera-world", sim_clock="lockstep")
+    env = ArmEnv(reach_io, spec, opts, human=keys)
     try:
         assert env.virtual is not None and env.confirm_reset
         obs, info = env.reset(seed=21)
