@@ -12,6 +12,7 @@ import json
 import sys
 from pathlib import Path
 
+from sim2real.cli.verbosity import add_verbose, configure_logging
 from sim2real.deploy.connection import add_arm_options, arm_connection
 from sim2real.deploy.replayed import PLACEMENT_SOURCES
 from sim2real.errors import ConfigError
@@ -57,6 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "evaluation episodes (the same as evaluate --dr none places)",
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="one JSON line per stage")
+    add_verbose(parser)
 
 
 def _default_out(policy: str) -> Path:
@@ -99,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     def on_start(stage: str) -> None:
         print(f"sim2real adapt: stage {stage} started", file=sys.stderr, flush=True)
 
+    configure_logging(args)
     adapter = Adapter(opts, report, on_start)
     print(f"sim2real adapt: {opts.out}", file=sys.stderr, flush=True)
     try:

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 from pathlib import Path
 from typing import Any
 
+from sim2real.cli.verbosity import add_verbose, configure_logging
 from sim2real.deploy.connection import add_arm_options, arm_connection
 from sim2real.deploy.replayed import PLACEMENT_SOURCES
 from sim2real.errors import ConfigError
@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "connect to a running one, or save a recording",
     )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
-    parser.add_argument("-v", "--verbose", action="store_true")
+    add_verbose(parser)
 
 
 def _live_view(where: str | None, policy: str, spec: Any, rate_hz: float) -> Any:
@@ -74,9 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.deploy.replayed import check_source, placements
     from sim2real.deploy.runner import deploy
 
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
-    )
+    configure_logging(args)
     opts = arm_connection(args)
     spec = load_spec(args.spec)
     check_source(args.placements, opts.backend)

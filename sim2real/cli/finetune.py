@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import math
 from pathlib import Path
 from typing import Any
 
+from sim2real.cli.verbosity import add_verbose, configure_logging
 from sim2real.deploy.connection import add_arm_options, arm_connection
 
 
@@ -101,16 +101,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also write the episodes as a LeRobot dataset",
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="JSON lines: each episode, a summary")
-    parser.add_argument("-v", "--verbose", action="store_true")
+    add_verbose(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from hardware.spec import load_spec
     from sim2real.finetune.runner import FinetuneOptions, finetune
 
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
-    )
+    configure_logging(args)
     opts = arm_connection(args)
     spec = load_spec(args.spec)
     out = args.out or Path("runs") / f"finetune-{Path(args.policy).name}"

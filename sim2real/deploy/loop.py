@@ -258,6 +258,7 @@ class DeployLoop:
         """Begin, run the periods until the last or a stop, judge, end."""
         session = self.session
         session.begin_episode(episode, rng)
+        log.info("episode %d started", episode)
         for _ in range(self.steps):
             if not self._period():
                 break
