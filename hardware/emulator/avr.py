@@ -191,15 +191,20 @@ class AvrEmulator(BodyCoupling, PtyDevice):
             with self._stdin_lock, contextlib.suppress(OSError, ValueError):
                 proc.stdin.write("Q\n")
                 proc.stdin.close()
-        self._kill()
-        if self._reader is not None:
+        self._end_process()
+        if self._reader is not None:  # at the harness's EOF: its pipe is closed after, not under it
             self._reader.join(timeout=5.0)
             self._reader = None
+        self._close_stdout()
         if self.link is not None and self.link.is_symlink():
             with contextlib.suppress(FileNotFoundError):
                 self.link.unlink()
 
     def _kill(self) -> None:
+        self._end_process()
+        self._close_stdout()
+
+    def _end_process(self) -> None:
         proc = self._proc
         if proc is None:
             return
@@ -208,9 +213,11 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=5.0)
-        if proc.stdout is not None:
+
+    def _close_stdout(self) -> None:
+        if self._proc is not None and self._proc.stdout is not None:
             with contextlib.suppress(OSError):
-                proc.stdout.close()
+                self._proc.stdout.close()
 
     def now_s(self) -> float:
         """Simulated time of the chip (seconds since power-up), as far as reported."""
@@ -220,12 +227,14 @@ class AvrEmulator(BodyCoupling, PtyDevice):
     # ---- events from the harness ------------------------------------------------------------
     def _read_events(self) -> None:
         assert self._proc is not None and self._proc.stdout is not None
-        for line in self._proc.stdout:
-            parts = line.split()
-            if not parts:
-                continue
-            with self._lock:
-                self._on_event(parts)
+        # ValueError: stop() gave up waiting for this thread and closed the pipe under it
+        with contextlib.suppress(ValueError, OSError):
+            for line in self._proc.stdout:
+                parts = line.split()
+                if not parts:
+                    continue
+                with self._lock:
+                    self._on_event(parts)
         self._running = False
 
     def _advance(self, t_s: float) -> None:
