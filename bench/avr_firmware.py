@@ -107,7 +107,7 @@ def main() -> int:
             pulsing = (proc_cpu_s(pid) - c0) / (time.perf_counter() - t0)
             chip.sync()
         errors_ns = np.array(
-            [abs(w - 1000 * int(outputs[ch])) for t, ch, w in chip.pulse_log if t > t_steady]
+            [abs(w - 1000 * int(outputs[ch])) for t, ch, w in chip.pulses() if t > t_steady]
         )
         stack = chip.stack_peak_bytes()
         baud = chip.baud_actual

@@ -117,8 +117,9 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         self._pots = [i for i in range(n) if self.limits.pot_channel[i] != NO_POT]
         self._pot_mv: dict[int, int] = {}  # actuator -> the wiper voltage set last
         self._pinned: set[int] = set()  # pots a test holds still (``set_pot_counts``)
-        # every wiper change as the chip saw it: (simulated s, actuator, ADC counts)
-        self.adc_log: list[tuple[float, int, int]] = []
+        # the chip's logs, appended by the event reader under the lock; read them through the
+        # snapshot methods below (iterating a deque the reader appends to raises)
+        self._adc_log: list[tuple[float, int, int]] = []
         self._log: list[AppliedCommand] = []
         self._rx = S2RFramer(gap_s=0.5)
         self._tx = S2RFramer(gap_s=0.5)
@@ -133,12 +134,10 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         self.baud_actual: float | None = None
         self.min_sp: int | None = None
         self.pulses_seen = 0
-        # every measured pulse: (simulated s, channel, width in ns), for tests and the bench
-        self.pulse_log: deque[tuple[float, int, int]] = deque(maxlen=100_000)
-        self.off_log: list[tuple[float, int]] = []  # (simulated s, channel): pulses stopped
+        self._pulse_log: deque[tuple[float, int, int]] = deque(maxlen=100_000)
+        self._off_log: list[tuple[float, int]] = []
         self.crashed: str | None = None
-        # the UART's traffic as the chip saw it: ("RX" | "TX", simulated s, bytes)
-        self.traffic: deque[tuple[str, float, bytes]] = deque(maxlen=100_000)
+        self._traffic: deque[tuple[str, float, bytes]] = deque(maxlen=100_000)
 
     # ---- lifecycle ------------------------------------------------------------------------
     def start(self) -> str:
@@ -253,12 +252,12 @@ class AvrEmulator(BodyCoupling, PtyDevice):
             self._pulse_us[ch] = width_us
             self._powered[ch] = True
             self.pulses_seen += 1
-            self.pulse_log.append((t_s, ch, width_ns))
+            self._pulse_log.append((t_s, ch, width_ns))
         elif kind == "O":  # a pulse train stopped: the servo goes limp
             t_s, ch = int(parts[1]) * 1e-6, int(parts[2])
             self._advance(t_s)
             self._powered[ch] = False
-            self.off_log.append((t_s, ch))
+            self._off_log.append((t_s, ch))
         elif kind == "T":
             self._advance(int(parts[1]) * 1e-6)
             self.min_sp = int(parts[2])
@@ -267,12 +266,12 @@ class AvrEmulator(BodyCoupling, PtyDevice):
             ch, mv = int(parts[2]), int(parts[3])
             for i in self._pots:
                 if self.limits.pot_channel[i] == ch:
-                    self.adc_log.append((int(parts[1]) * 1e-6, i, mv_to_counts(mv)))
+                    self._adc_log.append((int(parts[1]) * 1e-6, i, mv_to_counts(mv)))
         elif kind == "RX" and len(parts) == 3:
             t_s = int(parts[1]) * 1e-6
             self._advance(t_s)
             data = bytes.fromhex(parts[2])
-            self.traffic.append(("RX", t_s, data))
+            self._traffic.append(("RX", t_s, data))
             for f in self._rx.feed(data, t_s):
                 dup = self._last_rx == (f.seq, f.crc)
                 self._last_rx = (f.seq, f.crc)
@@ -281,7 +280,7 @@ class AvrEmulator(BodyCoupling, PtyDevice):
             t_s = int(parts[1]) * 1e-6
             self._advance(t_s)
             data = bytes.fromhex(parts[2])
-            self.traffic.append(("TX", t_s, data))
+            self._traffic.append(("TX", t_s, data))
             for f in self._tx.feed(data, t_s):
                 self._on_reply(f, t_s)
         elif kind == "BAUD":
@@ -371,6 +370,27 @@ class AvrEmulator(BodyCoupling, PtyDevice):
         """What the chip drives the servos towards right now (its latest pulses), in rad."""
         with self._lock:
             return self.mounting.from_units(self._pulse_us)
+
+    def pulses(self) -> list[tuple[float, int, int]]:
+        """Every measured pulse so far (the newest 100,000): (simulated s, channel, width ns)."""
+        with self._lock:
+            return list(self._pulse_log)
+
+    def pulse_stops(self) -> list[tuple[float, int]]:
+        """Every pulse train that stopped (the servo went limp): (simulated s, channel)."""
+        with self._lock:
+            return list(self._off_log)
+
+    def adc_readings(self) -> list[tuple[float, int, int]]:
+        """Every wiper change as the chip's ADC saw it: (simulated s, actuator, ADC counts)."""
+        with self._lock:
+            return list(self._adc_log)
+
+    def uart_traffic(self) -> list[tuple[str, float, bytes]]:
+        """The UART's traffic as the chip saw it (the newest 100,000 chunks): ("RX" | "TX",
+        simulated s, bytes)."""
+        with self._lock:
+            return list(self._traffic)
 
     def pulse_widths_us(self) -> np.ndarray:
         """The latest measured pulse width per servo, rounded to whole µs."""

@@ -1,8 +1,12 @@
 """The kinematic excitation ON THE ARM: the slow sweep of ``sysid.kinematics.excitation_rad``
 streamed to an ``Arm`` through its safety layer, with the wrist marker seen by two cameras.
 
-Each period pairs the servo readings with what the cameras see at that instant. Where the marker
-comes from is a ``MarkerView``:
+Each period logs the servo readings and what the cameras see, each with the instant it shows:
+the readings the middle of their request and reply, a view the instant of its frames. The fit
+(``sysid.kinematics.load_marker_log``) interpolates the readings to the views' instants. Pairing
+them by period instead misreads the wrist's lag as a joint offset: the sweep moves the shoulder
+at up to 0.5 rad/s, so 10 ms between a reading and its frame is 5 mrad, and a loaded host or a
+camera's latency makes it tens of ms. Where the marker comes from is a ``MarkerView``:
 
 - ``RenderedView`` (mock backend): the emulator's PHYSICAL joint angles are sampled in the loop
   (cheap) and rendered afterwards with the plant's links by the mock rig's cameras, then detected
@@ -10,8 +14,9 @@ comes from is a ``MarkerView``:
 - ``CameraView`` (serial backend): the newest pair of the user's calibrated cameras, measured in
   the loop.
 
-The log has the keys ``sysid --kinematics`` reads (``joints_rad``, ``ee_marker_m`` with NaN where
-the marker was not seen), so a recorded excitation can be refitted by hand.
+The log has the keys ``sysid --kinematics`` reads (``t_s`` and ``joints_rad``, ``marker_t_s`` and
+``ee_marker_m`` with NaN where the marker was not seen), so a recorded excitation can be refitted
+by hand.
 """
 
 from __future__ import annotations
@@ -30,8 +35,9 @@ KINEMATIC_RATE_HZ = 10.0  # the sweep is slow (periods of 7-23 s): 10 Hz samples
 
 
 class MarkerView(Protocol):
-    def snapshot(self) -> Any:
-        """Called once per period, right after the joint reading: must be quick."""
+    def snapshot(self) -> tuple[Any, float]:
+        """Called once per period, right after the joint reading: must be quick. Returns what
+        the view holds and the ``time.monotonic()`` instant it shows (a frame's capture)."""
         ...
 
     def markers_m(self, snapshots: list[Any]) -> np.ndarray:
@@ -59,8 +65,11 @@ class RenderedView:
         self.emulator = emulator
         self.rig = rig
 
-    def snapshot(self) -> np.ndarray:
-        return np.asarray(self.emulator.true_positions_rad(), dtype=float)
+    def snapshot(self) -> tuple[np.ndarray, float]:
+        """The plant's physical angles, sampled at once (the mock's cameras have no latency)."""
+        t_ask = time.monotonic()
+        physical = np.asarray(self.emulator.true_positions_rad(), dtype=float)
+        return physical, 0.5 * (t_ask + time.monotonic())
 
     def markers_m(self, snapshots: list[Any]) -> np.ndarray:
         from sim2real.deploy.virtual_cameras import VirtualStereoCameras, stereo_rig_of
@@ -89,12 +98,13 @@ class CameraView:
         self.frames = frames
         self.tracker = _tracker(stereo, base_T_left)
 
-    def snapshot(self) -> np.ndarray:
+    def snapshot(self) -> tuple[np.ndarray, float]:
         pair = self.frames.latest()
         if pair is None:
-            return np.full(3, np.nan)
+            return np.full(3, np.nan), time.monotonic()
         meas = self.tracker.measure(pair.left_bgr, pair.right_bgr)
-        return np.full(3, np.nan) if meas is None else np.asarray(meas.position_m, dtype=float)
+        seen = np.full(3, np.nan) if meas is None else np.asarray(meas.position_m, dtype=float)
+        return seen, pair.capture_s
 
     def markers_m(self, snapshots: list[Any]) -> np.ndarray:
         return np.asarray(snapshots, dtype=float).reshape(-1, 3)
@@ -104,15 +114,16 @@ def record_kinematic_excitation(
     arm: ArmBase, view: MarkerView, duration_s: float, rate_hz: float = KINEMATIC_RATE_HZ
 ) -> tuple[dict[str, np.ndarray], list[Any]]:
     """Home, walk to the sweep's first pose, stream the sweep, home. Returns the log (``t_s``,
-    ``joints_rad`` n_joints readings, ``sent_rad``) and the view's snapshots: the caller adds
-    ``ee_marker_m = view.markers_m(snapshots)`` (NaN where unseen) once the arm is parked, so
-    rendering never holds a powered arm waiting."""
+    ``joints_rad`` n_joints readings, ``sent_rad``, ``marker_t_s``: the instant each snapshot
+    shows) and the view's snapshots: the caller adds ``ee_marker_m = view.markers_m(snapshots)``
+    (NaN where unseen) once the arm is parked, so rendering never holds a powered arm waiting."""
     spec = arm.spec
     q = excitation_rad(spec, duration_s, rate_hz)
     grip = [spec.gripper.open_rad] if spec.gripper is not None else []
     arm.home()
     arm.move_to(np.concatenate([q[0], grip]))
-    rows: dict[str, list[Any]] = {k: [] for k in ("t_s", "joints_rad", "sent_rad")}
+    keys = ("t_s", "joints_rad", "sent_rad", "marker_t_s")
+    rows: dict[str, list[Any]] = {k: [] for k in keys}
     snaps: list[Any] = []
     period = 1.0 / rate_hz
     next_t = time.monotonic()
@@ -120,9 +131,13 @@ def record_kinematic_excitation(
         rows["sent_rad"].append(arm.command(np.concatenate([target, grip])))
         next_t += period
         time.sleep(max(0.0, next_t - time.monotonic()))
-        rows["t_s"].append(time.monotonic())
+        t_ask = time.monotonic()
         state = arm.read_state()
-        snaps.append(view.snapshot())  # the same instant as the reading, as near as can be
+        # the servos were sampled between the request and the reply: their middle
+        rows["t_s"].append(0.5 * (t_ask + time.monotonic()))
         rows["joints_rad"].append(state.positions_rad[: spec.n_joints])
+        snap, shown_s = view.snapshot()
+        snaps.append(snap)
+        rows["marker_t_s"].append(shown_s)
     arm.home()
     return {k: np.asarray(v, dtype=float) for k, v in rows.items()}, snaps

@@ -94,8 +94,9 @@ class SimArm(ArmBase):
             self._finger_dofs = np.array([self.model.joint(j).dofadr[0] for j in FINGER_JOINTS])
             self._finger_geoms = frozenset(self.model.geom(g).id for g in FINGER_GEOMS)
         # Every target vector applied, oldest first (bounded): what the contract tests compare
-        # with what command() returned.
-        self.received: deque[np.ndarray] = deque(maxlen=10_000)
+        # with what command() returned. Appended under the base's lock (a keeper thread sends
+        # too), so it is read through received_targets_rad().
+        self._received: deque[np.ndarray] = deque(maxlen=10_000)
 
     # ---- time -------------------------------------------------------------------------------
     def _advance(self, seconds: float) -> None:
@@ -179,8 +180,13 @@ class SimArm(ArmBase):
             self._settle_fingers()
         res = self.spec.servo.resolution_rad
         sent = np.rint(self._targets / res) * res if res > 0 else self._targets.copy()
-        self.received.append(sent.copy())
+        self._received.append(sent.copy())
         return sent
+
+    def received_targets_rad(self) -> list[np.ndarray]:
+        """Every target vector applied so far (the newest 10,000), oldest first."""
+        with self._lock:
+            return list(self._received)
 
     @property
     def lockstep_period_s(self) -> float | None:

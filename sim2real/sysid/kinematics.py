@@ -98,7 +98,13 @@ def load_marker_log(path: str | Path, spec: ArmSpec) -> MarkerObservations:
     NaN when unseen) when the log has it; else ``ee_est_m`` (the deploy loop's tool estimate:
     plate + the spec's plate-to-tool offset turned by the yaw reading) turned back into the
     plate, in the periods ``ee_seen`` marks (the others hold forward kinematics, not a view).
-    The raw marker is better: ``ee_est_m`` is Kalman-filtered, so it lags a moving wrist."""
+    The raw marker is better: ``ee_est_m`` is Kalman-filtered, so it lags a moving wrist.
+
+    A log with ``t_s`` and ``marker_t_s`` (adapt's excitation: when each reading and each view
+    was taken) pairs each marker with the readings interpolated to its instant, not with the
+    period's reading: the sweep moves a joint up to 0.5 rad/s, so the tens of ms between a
+    reading and a frame would be fitted as joint offsets. A marker outside the readings' span
+    is dropped (NaN)."""
     p = Path(path)
     try:
         data = dict(np.load(p))
@@ -130,7 +136,31 @@ def load_marker_log(path: str | Path, spec: ArmSpec) -> MarkerObservations:
         )
     if len(marker) != len(q):
         raise ConfigError(f"log {str(p)!r}: {len(marker)} marker rows but {len(q)} joint readings")
+    if "marker_t_s" in data and "t_s" in data:
+        q, marker = readings_at(
+            np.asarray(data["t_s"], dtype=float), q, np.asarray(data["marker_t_s"], dtype=float),
+            marker, str(p),
+        )  # fmt: skip
     return MarkerObservations(q, marker, source=str(p))
+
+
+def readings_at(
+    t_s: np.ndarray, q_rad: np.ndarray, marker_t_s: np.ndarray, marker_m: np.ndarray, name: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """The readings ``q_rad`` (taken at ``t_s``) interpolated to each marker's instant, and the
+    markers with those outside the readings' span set to NaN (nothing to interpolate from)."""
+    if not (len(t_s) == len(marker_t_s) == len(q_rad)):
+        raise ConfigError(
+            f"log {name!r}: {len(t_s)} reading times and {len(marker_t_s)} marker times for "
+            f"{len(q_rad)} readings"
+        )
+    if len(t_s) == 0:
+        return q_rad, marker_m
+    if not np.all(np.diff(t_s) > 0):
+        raise ConfigError(f"log {name!r}: its reading times 't_s' do not increase")
+    at = np.stack([np.interp(marker_t_s, t_s, q_rad[:, j]) for j in range(q_rad.shape[1])], 1)
+    outside = (marker_t_s < t_s[0]) | (marker_t_s > t_s[-1]) | ~np.isfinite(marker_t_s)
+    return at, np.where(outside[:, None], np.nan, marker_m)
 
 
 def predict_marker_m(theta: np.ndarray, q_rad: np.ndarray, spec: ArmSpec) -> np.ndarray:

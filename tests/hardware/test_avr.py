@@ -147,7 +147,7 @@ def test_pulses_are_the_firmware_outputs_and_stop_when_detached(
             arm.hold()
             time.sleep(0.02)
         emu.sync()
-        steady = [(ch, w) for t, ch, w in emu.pulse_log if t > t_steady + 0.005]
+        steady = [(ch, w) for t, ch, w in emu.pulses() if t > t_steady + 0.005]
         arm.disable()
         emu.sync()
         assert not np.any(emu.torque_enabled())
@@ -278,7 +278,7 @@ def _model_replay(
     pots: Sequence[tuple[float, int, int]] = (),
 ) -> tuple[list[bytes], list[AppliedCommand]]:
     """What the Python model does with the bytes the chip received, at the chip's times, with
-    the potentiometer readings the chip's ADC saw (``AvrEmulator.adc_log``)."""
+    the potentiometer readings the chip's ADC saw (``AvrEmulator.adc_readings``)."""
     log: list[AppliedCommand] = []
     core = FirmwareCore(firmware_limits(spec), boot_id, now_ms=0, on_log=log.append)
     replies: list[bytes] = []
@@ -307,7 +307,7 @@ def _pause_on_the_chips_clock(emu: AvrEmulator, sent_bytes: int, pause_s: float)
     shorter, near a firmware threshold (a 20 ms pause read as the 10 ms frame gap)."""
 
     def received() -> tuple[int, float]:
-        rx = [(t, len(d)) for k, t, d in list(emu.traffic) if k == "RX"]
+        rx = [(t, len(d)) for k, t, d in emu.uart_traffic() if k == "RX"]
         return sum(n for _, n in rx), max((t for t, _ in rx), default=0.0)
 
     assert emu.wait_until(lambda: received()[0] >= sent_bytes, scaled(10.0)), (
@@ -325,13 +325,13 @@ def _move_wipers_quietly(emu: AvrEmulator, counts: dict[str, int]) -> None:
     voltage, so no frame is handled while a reading changes (a loaded machine slows the chip
     as much as it likes)."""
     assert emu.sync(timeout_s=scaled(10.0)), "the chip did not catch up with the bytes sent"
-    seen = len(emu.adc_log)
+    seen = len(emu.adc_readings())
     for name, value in counts.items():
         emu.set_pot_counts(name, value)
     wanted = {emu.spec.actuator_names.index(n): v for n, v in counts.items()}
 
     def read_back() -> bool:
-        new = emu.adc_log[seen:]
+        new = emu.adc_readings()[seen:]
         return all(any(i == j and c == v for _, i, c in new) for j, v in wanted.items())
 
     assert emu.wait_until(read_back, timeout_s=scaled(10.0)), f"the ADC never read {counts}"
@@ -399,7 +399,7 @@ def _replay_matches_the_model(spec: ArmSpec, emu: AvrEmulator, seed: int, build:
         assert emu.sync(timeout_s=scaled(10.0)), "the chip did not catch up with the bytes sent"
         time.sleep(0.05)
         port.read(4096)
-    traffic = list(emu.traffic)
+    traffic = emu.uart_traffic()
     sent = b"".join(d for _, d in chunks)
     assert b"".join(d for k, _, d in traffic if k == "RX") == sent
     framer = s2r.S2RFramer(gap_s=1.0)
@@ -409,7 +409,9 @@ def _replay_matches_the_model(spec: ArmSpec, emu: AvrEmulator, seed: int, build:
         if k == "TX"
         for f in framer.feed(d, t)
     ]
-    model_replies, model_log = _model_replay(traffic, build_spec, boot_id=1, pots=emu.adc_log)
+    model_replies, model_log = _model_replay(
+        traffic, build_spec, boot_id=1, pots=emu.adc_readings()
+    )
     assert len(chip_replies) == len(model_replies) > 20
     for k, (a, b) in enumerate(zip(chip_replies, model_replies, strict=True)):
         assert a == b, f"reply {k}: chip {a.hex()} != model {b.hex()}"
@@ -520,13 +522,13 @@ def test_slew_and_watchdog_run_in_chip_time(
         port.write(s2r.encode_frame(2, s2r.SET_TARGETS, s2r.encode_targets(target)))
         assert len(port.read(8 + 3 + 4 * spec.n_actuators)) > 0
         # then silence: the chip's watchdog, not the host's, ends it
-        assert emu.wait_until(lambda: len(emu.off_log) == spec.n_actuators, timeout_s=5.0)
-    replies = [t for k, t, d in emu.traffic if k == "TX"]
+        assert emu.wait_until(lambda: len(emu.pulse_stops()) == spec.n_actuators, timeout_s=5.0)
+    replies = [t for k, t, d in emu.uart_traffic() if k == "TX"]
     t_cmd = replies[-1]  # the STATE reply: the target was applied just before it
     # the harness stamps the reply's bytes as it collects them, anywhere within their time on the
     # wire (later on a loaded machine, where the chip's loop collects bigger chunks)
     wire_s = (8 + 3 + 4 * spec.n_actuators) * 10 / 115200
-    ch0 = [(t, w) for t, ch, w in emu.pulse_log if ch == 0 and t > t_cmd]
+    ch0 = [(t, w) for t, ch, w in emu.pulses() if ch == 0 and t > t_cmd]
     reached = next(t for t, w in ch0 if round(w / 1000) == target[0])
     slew_s = 150 / limits.slew_us_per_s[0]  # 31.4 ms at 4,774 us/s
     # + one 20 ms frame + a pulse
@@ -534,7 +536,7 @@ def test_slew_and_watchdog_run_in_chip_time(
     # 150 us in steps no bigger than one 20 ms frame's worth of slew
     widths = [w / 1000 for _, w in ch0 if w / 1000 <= target[0] + 1]
     assert max(b - a for a, b in itertools.pairwise(widths)) <= (limits.slew_us_per_s[0] * 0.021)
-    off_s = min(t for t, _ in emu.off_log) - t_cmd
+    off_s = min(t for t, _ in emu.pulse_stops()) - t_cmd
     wd_s = (limits.watchdog_ms + limits.hold_ms) / 1000  # 750 ms
     assert wd_s - 0.002 - wire_s <= off_s <= wd_s + 0.025  # stopped between two frames
     # while holding, the pulses stayed at the output: no motion after the hold

@@ -97,12 +97,12 @@ def test_a_blind_period_holds_still_and_keeps_the_gripper(spec: ArmSpec, pick_io
 def test_a_dry_run_filters_every_command_and_sends_none(spec: ArmSpec, reach_io: PolicyIO) -> None:
     with _session(spec, reach_io, LoopConfig(episode_steps=3, dry_run=True)) as session:
         session.begin_episode(0, np.random.default_rng(0))
-        received = len(session.arm.received)  # type: ignore[attr-defined]
+        received = len(session.arm.received_targets_rad())  # type: ignore[attr-defined]
         filtered = session.arm.safety.stats.commands
         sensed = session.sense()
         out = session.act(np.ones(reach_io.decoder.n_actions), sensed, session.observe(sensed))
         assert session.arm.safety.stats.commands == filtered + 1  # judged by the filter
-        assert len(session.arm.received) == received  # type: ignore[attr-defined]
+        assert len(session.arm.received_targets_rad()) == received  # type: ignore[attr-defined]
         assert out.shape == (spec.n_actuators,) and session.log is not None
         np.testing.assert_array_equal(session.log.rows["sent_rad"][-1], out)  # and logged
 

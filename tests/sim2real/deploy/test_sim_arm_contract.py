@@ -26,7 +26,7 @@ class SimProbe:
         return self.arm.torque_on
 
     def received_targets_rad(self) -> list[np.ndarray]:
-        return list(self.arm.received)
+        return self.arm.received_targets_rad()
 
 
 class TestSimArmContract:

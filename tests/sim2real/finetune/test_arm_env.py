@@ -67,7 +67,7 @@ def test_check_env_passes_on_the_sim_backend_and_close_parks(
     env.close()  # twice is fine
     arm = env.arm
     assert not arm.is_connected and not arm.torque_on  # type: ignore[attr-defined]
-    assert _parked(spec, arm.received[-1])  # type: ignore[attr-defined]
+    assert _parked(spec, arm.received_targets_rad()[-1])  # type: ignore[attr-defined]
     with pytest.raises(ConfigError, match="closed"):
         env.reset()
 
@@ -180,7 +180,7 @@ def test_the_safety_filter_runs_exactly_once_per_step(
         reach_env.step(np.ones(3, dtype=np.float32))  # large steps: the clamp acts
     assert calls["filter"] == 15
     assert reach_env.safety_stats["step_clamped"] >= 1
-    steps = np.abs(np.diff(np.asarray(reach_env.arm.received)[-16:], axis=0))  # type: ignore[attr-defined]
+    steps = np.abs(np.diff(np.asarray(reach_env.arm.received_targets_rad())[-16:], axis=0))  # type: ignore[attr-defined]
     assert np.all(steps <= reach_env.arm_spec.safety.max_step_rad + 1e-9)
 
 

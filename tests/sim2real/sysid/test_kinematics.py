@@ -111,6 +111,33 @@ def test_log_adapter_reads_raw_markers_and_deploy_tool_estimates(tmp_path: Path,
     np.testing.assert_allclose(loaded.marker_m[:5], obs.marker_m[:5], atol=1e-12)
 
 
+def test_markers_pair_with_the_readings_at_their_own_instants(tmp_path: Path) -> None:
+    """A view 30 ms behind its readings (a loaded host, a camera's latency) on a 6 s sweep:
+    paired by period the fit takes the lag for joint offsets; with ``marker_t_s`` the readings
+    are interpolated to each frame's instant and the offsets come back."""
+    truth = _truth(load_plant("moderate"))
+    fine = excitation_rad(SPEC, 6.1, 1000.0)  # the sweep every ms
+    read_ms, lag_ms = np.arange(0, 6000, 100), 30
+    q_read = fine[read_ms]
+    marker = predict_marker_m(truth, fine[read_ms + lag_ms], SPEC)  # where the wrist was then
+    joints = np.c_[q_read, np.zeros(len(q_read))]
+    t_s = 100.0 + read_ms / 1000.0  # time.monotonic() is anywhere
+    by_period, stamped = tmp_path / "by_period.npz", tmp_path / "stamped.npz"
+    np.savez(by_period, t_s=t_s, joints_rad=joints, ee_marker_m=marker)
+    np.savez(
+        stamped, t_s=t_s, marker_t_s=t_s + lag_ms / 1000, joints_rad=joints, ee_marker_m=marker
+    )
+    off = fit_kinematics(load_marker_log(by_period, SPEC), SPEC).values[:3] - truth[:3]
+    assert np.abs(off).max() > 0.01, off  # the lag, fitted as offsets
+    obs = load_marker_log(stamped, SPEC)
+    assert len(obs.joints_rad) == len(t_s) - 1  # the last frame is after the last reading
+    off = fit_kinematics(obs, SPEC).values[:3] - truth[:3]
+    assert np.abs(off).max() < 0.001, off
+    np.savez(stamped, t_s=t_s[::-1], marker_t_s=t_s, joints_rad=joints, ee_marker_m=marker)
+    with pytest.raises(ConfigError, match=r"reading times 't_s' do not increase"):
+        load_marker_log(stamped, SPEC)
+
+
 def _sysid(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "sim2real", "sysid", *args],
