@@ -1,5 +1,5 @@
 """``python -m sim2real`` is the ``sim2real`` console command."""
 
-from sim2real.cli.main import main
+from sim2real.cli.main import console
 
-raise SystemExit(main())
+console()

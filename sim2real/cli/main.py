@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
+import os
 import signal
 import sys
 from collections.abc import Sequence
@@ -166,9 +168,26 @@ def _main(args_list: list[str]) -> int:
     return code
 
 
+def console() -> None:
+    """The process entry (the ``sim2real`` console script, ``python -m sim2real``): ``main``,
+    then exit with its code. A command a signal stopped has stopped cleanly by the time ``main``
+    returns 130 or 143 (the arm parked, every file written whole, the message printed); it then
+    leaves without the interpreter's teardown, whose native finalizers (EGL, LLVM, torch's
+    threads) run over state the KeyboardInterrupt cut through: ``adapt`` interrupted in its
+    sysid stage, after rendering in its record stage, once died there by SIGSEGV (exit -11
+    after its clean stop was printed), which a caller cannot tell from a crash."""
+    code = main()
+    if code in (128 + signal.SIGINT, 128 + signal.SIGTERM):
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    raise SystemExit(code)
+
+
 def _signal_name(exit_code: int) -> str:
     return "Ctrl-C" if exit_code == 130 else signal.Signals(exit_code - 128).name
 
 
 if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())
+    console()
