@@ -26,11 +26,8 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import gymnasium as gym
-import numpy as np
+from env_throughput import env_rate  # steps per CPU second unless BENCH_CLOCK=wall
 from support.load import REPO, emit_row
-
-import sim2real.envs  # noqa: F401
 
 REFERENCE_STEPS_PER_S = 8494.0  # arm3pick, one core, bench/records/speed.jsonl, 2026-11-24
 TARGET_S = {"default": 300.0, "slow": None}
@@ -41,21 +38,9 @@ PYTEST = {
 _SUMMARY = re.compile(r"=* ?(?P<counts>[^=]*?) in (?P<s>[0-9.]+)s")
 
 
-def pick_steps_per_cpu_s(steps: int = 3000, rounds: int = 3) -> float:
+def pick_steps_per_cpu_s(rounds: int = 3) -> float:
     """The pick env's steps per CPU second of this process, best of ``rounds``."""
-    env = gym.make("Sim2Real/Arm3Pick-v0", dr="default")
-    env.reset(seed=0)
-    actions = np.random.default_rng(0).uniform(-1, 1, (steps, *env.action_space.shape))
-    best = 0.0
-    for _ in range(rounds):
-        t0 = time.process_time()
-        for a in actions.astype(np.float32):
-            *_, term, trunc, _ = env.step(a)
-            if term or trunc:
-                env.reset()
-        best = max(best, steps / (time.process_time() - t0))
-    env.close()
-    return best
+    return max(env_rate("Sim2Real/Arm3Pick-v0", 3000, dr="default") for _ in range(rounds))
 
 
 def clear_bytecode() -> int:

@@ -20,7 +20,7 @@ from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
 from sim2real.cli.examples import describe
-from sim2real.cli.signals import Received, exit_code_for, interrupts_as_keyboard
+from sim2real.cli.signals import SIGNALS, Received, exit_code_for, interrupts_as_keyboard
 
 # Which install extra (pyproject.toml) provides a third-party module a command may import.
 EXTRA_OF_MODULE: dict[str, str] = {
@@ -177,7 +177,7 @@ def console() -> None:
     sysid stage, after rendering in its record stage, once died there by SIGSEGV (exit -11
     after its clean stop was printed), which a caller cannot tell from a crash."""
     code = main()
-    if code in (128 + signal.SIGINT, 128 + signal.SIGTERM):
+    if code in {128 + int(s) for s in SIGNALS}:
         logging.shutdown()
         sys.stdout.flush()
         sys.stderr.flush()
